@@ -1,0 +1,252 @@
+"""Brick layouts: the validated, format-independent input of the analysis.
+
+A :class:`Layout` holds ``n`` bricks as flat numpy arrays. Brick ``i`` occupies
+cells ``[x, x+sx) x [y, y+sy) x {z}`` of the stud grid (``sx`` studs along x,
+``sy`` along y, one layer high); layer 0 stands on the baseplate. Keys are the
+brick names exactly as the input gave them (strings).
+"""
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import os
+from typing import Mapping, Sequence
+
+import numpy as np
+
+__all__ = [
+    "LayoutError",
+    "Library",
+    "Layout",
+    "default_library",
+    "TABLE_I_MASS_KG",
+    "make_layout",
+]
+
+# Paper Table I, in kg, keyed by the sorted (short, long) footprint.
+TABLE_I_MASS_KG: dict[tuple[int, int], float] = {
+    (1, 1): 0.43e-3,
+    (1, 2): 0.81e-3,
+    (1, 4): 1.57e-3,
+    (1, 6): 2.28e-3,
+    (1, 8): 3.03e-3,
+    (2, 2): 1.15e-3,
+    (2, 4): 2.16e-3,
+    (2, 6): 3.23e-3,
+}
+
+_DEFAULT_LIBRARY_PATH = os.path.join(os.path.dirname(__file__), "lego_library.json")
+
+
+class LayoutError(ValueError):
+    """Bad input. The message names the source (file) and the brick at fault."""
+
+    def __init__(self, source: str, message: str, key: str | None = None):
+        self.source = source
+        self.key = key
+        where = f"{source}: brick {key!r}: " if key is not None else f"{source}: "
+        super().__init__(where + message)
+
+
+@dataclasses.dataclass(frozen=True)
+class Library:
+    """Brick library: id -> (height, width, mass in kg).
+
+    ``height`` is the extent along x and ``width`` along y when ``ori == 0``;
+    ``ori == 1`` swaps them (StableLego convention).
+    """
+
+    bricks: Mapping[str, tuple[int, int, float]]
+    source: str = "<library>"
+
+    @classmethod
+    def from_json(cls, path: str) -> "Library":
+        try:
+            with open(path) as fh:
+                raw = json.load(fh)
+        except OSError as exc:
+            raise LayoutError(path, f"cannot read brick library: {exc.strerror}") from None
+        except json.JSONDecodeError as exc:
+            raise LayoutError(path, f"brick library is not valid JSON: {exc}") from None
+        return cls.from_dict(raw, source=path)
+
+    @classmethod
+    def from_dict(cls, raw: Mapping, source: str = "<library>") -> "Library":
+        if not isinstance(raw, Mapping) or not raw:
+            raise LayoutError(source, "brick library must be a non-empty JSON object")
+        bricks: dict[str, tuple[int, int, float]] = {}
+        for bid, entry in raw.items():
+            if not isinstance(entry, Mapping):
+                raise LayoutError(source, f"library entry {bid!r} is not an object")
+            missing = [f for f in ("height", "width", "mass") if f not in entry]
+            if missing:
+                raise LayoutError(source, f"library entry {bid!r} lacks {', '.join(missing)}")
+            h, w, m = entry["height"], entry["width"], entry["mass"]
+            if not (_is_int(h) and _is_int(w) and h >= 1 and w >= 1):
+                raise LayoutError(source, f"library entry {bid!r} has a bad size {h}x{w}")
+            if not _is_number(m) or not math.isfinite(m) or m < 0:
+                raise LayoutError(source, f"library entry {bid!r} has a bad mass {m!r}")
+            bricks[str(bid)] = (int(h), int(w), float(m))
+        return cls(bricks=bricks, source=source)
+
+
+_DEFAULT_LIBRARY: Library | None = None
+
+
+def default_library() -> Library:
+    """The StableLego library (ids 2-12 real bricks, id 1 a 200 g load block)."""
+    global _DEFAULT_LIBRARY
+    if _DEFAULT_LIBRARY is None:
+        _DEFAULT_LIBRARY = Library.from_json(_DEFAULT_LIBRARY_PATH)
+    return _DEFAULT_LIBRARY
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class Layout:
+    """A validated brick layout.
+
+    Attributes:
+      keys: (n,) brick names as given by the input, in input order.
+      pos: (n, 3) int64 corner cell (x, y, z) with the smallest coordinates.
+      size: (n, 2) int64 extent (sx along x, sy along y) in studs.
+      mass: (n,) float64 brick mass in kg (extra loads included).
+      brick_id: (n,) library ids as strings ("" when the input had none).
+      ori: (n,) int64 StableLego orientation (0: height along x, 1: along y).
+      source: file the layout came from ("<memory>" otherwise).
+      fmt: input format ("json", "text", "dataset", "ldr", "memory").
+    """
+
+    keys: tuple[str, ...]
+    pos: np.ndarray
+    size: np.ndarray
+    mass: np.ndarray
+    brick_id: tuple[str, ...]
+    ori: np.ndarray
+    source: str = "<memory>"
+    fmt: str = "memory"
+
+    @property
+    def n(self) -> int:
+        return len(self.keys)
+
+    def occupancy(self) -> np.ndarray:
+        """(X, Y, Z) int32 grid: index of the brick in each cell, -1 where empty."""
+        return _occupancy(self.pos, self.size, self.source, self.keys)
+
+    def subset(self, idx: Sequence[int]) -> "Layout":
+        idx = np.asarray(idx, dtype=np.int64)
+        return dataclasses.replace(
+            self,
+            keys=tuple(self.keys[i] for i in idx),
+            pos=self.pos[idx],
+            size=self.size[idx],
+            mass=self.mass[idx],
+            brick_id=tuple(self.brick_id[i] for i in idx),
+            ori=self.ori[idx],
+        )
+
+
+def make_layout(
+    keys: Sequence[str],
+    pos,
+    size,
+    mass,
+    brick_id: Sequence[str] | None = None,
+    ori=None,
+    source: str = "<memory>",
+    fmt: str = "memory",
+) -> Layout:
+    """Build and validate a :class:`Layout` from plain arrays.
+
+    Raises LayoutError (naming ``source`` and the brick) on empty layouts,
+    duplicate keys, non-integer or negative cells, bad sizes, NaN or negative
+    masses, and overlapping bricks.
+    """
+    keys = tuple(str(k) for k in keys)
+    n = len(keys)
+    if n == 0:
+        raise LayoutError(source, "layout is empty (no bricks)")
+    if len(set(keys)) != n:
+        dup = next(k for k in keys if keys.count(k) > 1)
+        raise LayoutError(source, "duplicate brick key", dup)
+    pos_f = np.asarray(pos, dtype=np.float64).reshape(n, 3)
+    size_f = np.asarray(size, dtype=np.float64).reshape(n, 2)
+    mass = np.asarray(mass, dtype=np.float64).reshape(n)
+    for arr, what in ((pos_f, "coordinates"), (size_f, "size")):
+        bad = ~np.isfinite(arr).all(axis=1) | (arr != np.round(arr)).any(axis=1)
+        if bad.any():
+            i = int(np.argmax(bad))
+            raise LayoutError(source, f"non-integer {what} {arr[i].tolist()}", keys[i])
+    bad = (pos_f < 0).any(axis=1)
+    if bad.any():
+        i = int(np.argmax(bad))
+        raise LayoutError(source, f"negative coordinates {pos_f[i].astype(int).tolist()}", keys[i])
+    bad = (size_f < 1).any(axis=1)
+    if bad.any():
+        i = int(np.argmax(bad))
+        raise LayoutError(source, f"bad brick size {size_f[i].astype(int).tolist()}", keys[i])
+    bad = ~np.isfinite(mass) | (mass < 0)
+    if bad.any():
+        i = int(np.argmax(bad))
+        raise LayoutError(source, f"mass must be a finite number >= 0, got {mass[i]}", keys[i])
+    if brick_id is None:
+        brick_id = ("",) * n
+    ori_arr = np.zeros(n, np.int64) if ori is None else np.asarray(ori, np.int64).reshape(n)
+    pos_i = pos_f.astype(np.int64)
+    size_i = size_f.astype(np.int64)
+    _occupancy(pos_i, size_i, source, keys)  # raises on overlap
+    return Layout(
+        keys=keys,
+        pos=pos_i,
+        size=size_i,
+        mass=mass,
+        brick_id=tuple(str(b) for b in brick_id),
+        ori=ori_arr,
+        source=source,
+        fmt=fmt,
+    )
+
+
+def _occupancy(pos: np.ndarray, size: np.ndarray, source: str, keys) -> np.ndarray:
+    """Vectorised cell expansion; raises LayoutError on the first overlap."""
+    cells, owner = cells_of(pos, size)
+    dims = (pos[:, :2] + size).max(axis=0).tolist() + [int(pos[:, 2].max()) + 1]
+    grid = -np.ones(dims, dtype=np.int32)
+    flat = np.ravel_multi_index(cells.T, dims)
+    order = np.argsort(flat, kind="stable")
+    sf = flat[order]
+    dup = np.nonzero(sf[1:] == sf[:-1])[0]
+    if dup.size:
+        a, b = owner[order[dup[0]]], owner[order[dup[0] + 1]]
+        c = np.unravel_index(sf[dup[0]], dims)
+        raise LayoutError(
+            source,
+            f"overlaps brick {keys[a]!r} at cell {tuple(int(v) for v in c)}",
+            keys[b],
+        )
+    grid.reshape(-1)[flat] = owner
+    return grid
+
+
+def cells_of(pos: np.ndarray, size: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """All stud cells of all bricks, vectorised.
+
+    Returns (cells (c, 3) int64, owner (c,) int64 brick index).
+    """
+    area = size[:, 0] * size[:, 1]
+    owner = np.repeat(np.arange(len(pos)), area)
+    start = np.cumsum(area) - area
+    local = np.arange(int(area.sum())) - np.repeat(start, area)
+    sy = size[owner, 1]
+    dx, dy = local // sy, local % sy
+    cells = np.stack([pos[owner, 0] + dx, pos[owner, 1] + dy, pos[owner, 2]], axis=1)
+    return cells, owner
+
+
+def _is_int(v) -> bool:
+    return isinstance(v, (int, np.integer)) and not isinstance(v, bool)
+
+
+def _is_number(v) -> bool:
+    return isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool)
