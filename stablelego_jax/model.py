@@ -1,0 +1,237 @@
+"""Force model compiler: Layout -> fixed-shape arrays (paper Sec. III).
+
+Each *column* is one scalar force variable acting on at most two bricks
+(slot 0: the upper / +side brick, slot 1: the lower / -side brick, or the
+baseplate sink). Three kinds:
+
+* ``NORMAL``: one contact point of a knob connection, ``n = S - D`` (free);
+  pushes slot 0 up (+z) and slot 1 down at the interface plane. Its drag is
+  ``D = max(-n, 0)``, loading the upper brick (its ``group``).
+  Merging the S/D pair into one free variable is exact for the LP because
+  only ``S - D`` enters equilibrium and D has positive cost (so S*D = 0).
+* ``KNOB``: knob press along x or y at the knob centre on the interface plane
+  (the +/- pair merged into one free variable).
+* ``SIDE``: press H >= 0 between side-by-side cells, +x (or +y) on slot 0,
+  applied at the centre of the shared face.
+
+Equilibrium of brick b is ``(A f + g)[b] = 0`` with 6 rows per brick:
+force x, y, z (N) and torque about x, y, z at the brick centre (N m).
+"""
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from .layout import Layout, cells_of
+
+__all__ = ["Params", "ForceModel", "compile_layout", "NORMAL", "KNOB", "SIDE", "bucket_size"]
+
+NORMAL, KNOB, SIDE = 0, 1, 2
+
+# Contact-point offsets (studs) from the knob centre, fixed by the upper brick.
+_PTS_1XN = np.array([[0.0, -0.25], [-0.25, 0.0], [0.0, 0.25], [0.25, 0.0]])
+_PTS_2XN = np.array([[0.125, -0.125], [-0.25, 0.0], [0.125, 0.125]])
+
+
+@dataclasses.dataclass(frozen=True)
+class Params:
+    """Physical and scoring parameters (SPEC defaults, SI units).
+
+    stud: stud pitch (m); layer: layer height (m); g: gravity (m/s^2);
+    T: friction capacity per contact point (N); alpha, beta: Eq. 9 weights;
+    eq_tol: residual tolerance (N) below which a brick is in equilibrium
+    (torques are compared against ``eq_tol * stud`` N m).
+    """
+
+    stud: float = 0.0078
+    layer: float = 0.0096
+    g: float = 9.8
+    T: float = 0.98
+    alpha: float = 1e-3
+    beta: float = 1e-6
+    eq_tol: float = 1e-4
+
+
+@dataclasses.dataclass(frozen=True)
+class ForceModel:
+    """Compiled force model of one layout (numpy arrays; padded if asked).
+
+    n: bricks (rows 0..n-1 real); n_pad >= n; m: real columns; m_pad >= m.
+    col_brick: (m_pad, 2) int32 brick of each slot; ``n_pad`` = none/baseplate.
+    col_coef: (m_pad, 2, 6) wrench on each slot per unit force (N, N m).
+    col_kind: (m_pad,) int8 NORMAL/KNOB/SIDE; padding columns are KNOB with
+      zero coefficients (free, cost-free, inert).
+    col_mask: (m_pad,) bool real columns.
+    group: (n_pad, P) int32 NORMAL columns on each brick's bottom, ``m_pad``
+      where empty (for the per-brick max drag).
+    gravity: (n_pad, 6) constant wrench (weight) on each brick.
+    brick_mask: (n_pad,) bool real bricks.
+    """
+
+    n: int
+    m: int
+    col_brick: np.ndarray
+    col_coef: np.ndarray
+    col_kind: np.ndarray
+    col_mask: np.ndarray
+    group: np.ndarray
+    gravity: np.ndarray
+    brick_mask: np.ndarray
+    params: Params
+
+    @property
+    def n_pad(self) -> int:
+        return self.gravity.shape[0]
+
+    @property
+    def m_pad(self) -> int:
+        return self.col_kind.shape[0]
+
+    def dense_A(self) -> np.ndarray:
+        """(6 n, m) dense equilibrium matrix of the real rows and columns."""
+        A = np.zeros((self.n_pad + 1, 6, self.m_pad))
+        cols = np.arange(self.m_pad)
+        for s in range(2):
+            np.add.at(A, (self.col_brick[:, s], slice(None), cols), self.col_coef[:, s, :])
+        return A[: self.n].reshape(6 * self.n, self.m_pad)[:, : self.m]
+
+    def pad(self, n_pad: int, m_pad: int, p_pad: int | None = None) -> "ForceModel":
+        """Pad to (n_pad bricks, m_pad columns, p_pad points per group)."""
+        if n_pad < self.n or m_pad < self.m:
+            raise ValueError(f"cannot pad ({self.n}, {self.m}) to ({n_pad}, {m_pad})")
+        P = self.group.shape[1] if p_pad is None else p_pad
+        if P < self.group.shape[1]:
+            raise ValueError(f"cannot pad group width {self.group.shape[1]} to {P}")
+        dm = m_pad - self.m_pad
+        cb = np.where(self.col_brick >= self.n_pad, n_pad, self.col_brick)
+        cb = np.concatenate([cb, np.full((dm, 2), n_pad, np.int32)])
+        coef = np.concatenate([self.col_coef, np.zeros((dm, 2, 6))])
+        kind = np.concatenate([self.col_kind, np.full(dm, KNOB, np.int8)])
+        mask = np.concatenate([self.col_mask, np.zeros(dm, bool)])
+        grp = np.full((n_pad, P), m_pad, np.int32)
+        old = self.group
+        grp[: old.shape[0], : old.shape[1]] = np.where(old >= self.m_pad, m_pad, old)
+        grav = np.zeros((n_pad, 6))
+        grav[: self.n_pad] = self.gravity
+        bm = np.zeros(n_pad, bool)
+        bm[: self.n_pad] = self.brick_mask
+        return dataclasses.replace(
+            self, col_brick=cb.astype(np.int32), col_coef=coef, col_kind=kind, col_mask=mask,
+            group=grp, gravity=grav, brick_mask=bm,
+        )
+
+
+def bucket_size(k: int, base: int = 8, growth: float = 1.25) -> int:
+    """Smallest bucket >= k from a geometric ladder (shapes reused across layouts)."""
+    b = base
+    while b < k:
+        b = int(np.ceil(b * growth / 8.0) * 8)
+    return b
+
+
+def compile_layout(layout: Layout, params: Params = Params()) -> ForceModel:
+    """Build the force model of ``layout`` (vectorised numpy, no brick loops)."""
+    L, Hl = params.stud, params.layer
+    n = layout.n
+    pos, size = layout.pos, layout.size
+    grid = layout.occupancy()
+    X, Y, Z = grid.shape
+    centre = np.stack(
+        [(pos[:, 0] + size[:, 0] / 2) * L, (pos[:, 1] + size[:, 1] / 2) * L, (pos[:, 2] + 0.5) * Hl],
+        axis=1,
+    )  # (n, 3) m
+    cells, owner = cells_of(pos, size)
+    cx, cy, cz = cells.T
+
+    # --- knob connections: cell of an upper brick over a lower brick or the baseplate
+    below = np.where(cz > 0, grid[cx, cy, np.maximum(cz - 1, 0)], n)
+    conn = below >= 0
+    c_up, c_lo = owner[conn], below[conn]
+    kx, ky = (cx[conn] + 0.5) * L, (cy[conn] + 0.5) * L  # knob centre (m)
+    kz = cz[conn] * Hl  # interface plane (m)
+
+    cols_brick, cols_coef, cols_kind, cols_group = [], [], [], []
+
+    def add(bricks_pair, forces, points, kind, group):
+        # forces: (k, 3) unit force on slot 0 (slot 1 gets the opposite); points (k, 3) m
+        c0 = centre[bricks_pair[:, 0]]
+        c1 = np.where(bricks_pair[:, 1:2] < n, centre[np.minimum(bricks_pair[:, 1], n - 1)], 0.0)
+        w0 = np.concatenate([forces, np.cross(points - c0, forces)], axis=1)
+        w1 = np.concatenate([-forces, np.cross(points - c1, -forces)], axis=1)
+        w1 = np.where(bricks_pair[:, 1:2] < n, w1, 0.0)
+        cols_brick.append(bricks_pair)
+        cols_coef.append(np.stack([w0, w1], axis=1))
+        cols_kind.append(np.full(len(forces), kind, np.int8))
+        cols_group.append(group)
+
+    pair = np.stack([c_up, c_lo], axis=1)
+    thin = size[c_up].min(axis=1) < 2
+    for sel, offs in ((thin, _PTS_1XN), (~thin, _PTS_2XN)):
+        k, p = int(sel.sum()), len(offs)
+        if k == 0:
+            continue
+        pts = np.stack(
+            [
+                (kx[sel, None] + offs[None, :, 0] * L),
+                (ky[sel, None] + offs[None, :, 1] * L),
+                np.broadcast_to(kz[sel, None], (k, p)),
+            ],
+            axis=-1,
+        ).reshape(k * p, 3)
+        bp = np.repeat(pair[sel], p, axis=0)
+        up = np.tile([0.0, 0.0, 1.0], (k * p, 1))
+        add(bp, up, pts, NORMAL, bp[:, 0])
+    knob_pts = np.stack([kx, ky, kz], axis=1)
+    for axis in (0, 1):
+        f = np.zeros((len(c_up), 3))
+        f[:, axis] = 1.0
+        add(pair, f, knob_pts, KNOB, np.full(len(c_up), -1))
+
+    # --- side presses between neighbouring cells of different bricks in one layer
+    for axis in (0, 1):
+        shifted = np.array(cells)
+        shifted[:, axis] += 1
+        inside = shifted[:, axis] < grid.shape[axis]
+        nb = np.full(len(cells), -1)
+        s = shifted[inside]
+        nb[inside] = grid[s[:, 0], s[:, 1], s[:, 2]]
+        side = (nb >= 0) & (nb != owner)
+        a, b = owner[side], nb[side]  # a on the - side, b on the + side
+        face = (cells[side] + 0.5) * [L, L, Hl]
+        face[:, axis] += 0.5 * L
+        f = np.zeros((len(a), 3))
+        f[:, axis] = 1.0
+        add(np.stack([b, a], axis=1), f, face, SIDE, np.full(len(a), -1))
+
+    col_brick = np.concatenate(cols_brick).astype(np.int32)
+    col_coef = np.concatenate(cols_coef)
+    col_kind = np.concatenate(cols_kind)
+    grp_owner = np.concatenate(cols_group)
+    m = len(col_kind)
+
+    # per-brick table of the NORMAL columns on its bottom
+    normal_cols = np.nonzero(col_kind == NORMAL)[0]
+    go = grp_owner[normal_cols]
+    order = np.argsort(go, kind="stable")
+    normal_cols, go = normal_cols[order], go[order]
+    counts = np.bincount(go, minlength=n)
+    P = max(int(counts.max()) if counts.size else 1, 1)
+    slot = np.arange(len(go)) - np.repeat(np.cumsum(counts) - counts, counts)
+    group = np.full((n, P), m, np.int32)
+    group[go, slot] = normal_cols
+
+    gravity = np.zeros((n, 6))
+    gravity[:, 2] = -layout.mass * params.g
+    return ForceModel(
+        n=n,
+        m=m,
+        col_brick=col_brick,
+        col_coef=col_coef,
+        col_kind=col_kind,
+        col_mask=np.ones(m, bool),
+        group=group,
+        gravity=gravity,
+        brick_mask=np.ones(n, bool),
+        params=params,
+    )
