@@ -16,6 +16,7 @@ import tempfile
 from typing import Mapping
 
 from .layout import (
+    MAX_COORD,
     TABLE_I_MASS_KG,
     Layout,
     LayoutError,
@@ -89,10 +90,12 @@ def parse_json_layout(raw, library: Library | None = None, source: str = "<memor
         xyz = []
         for f in ("x", "y", "z"):
             v = b[f]
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v != int(v):
-                raise LayoutError(source, f"coordinate {f}={v!r} is not an integer", key)
+            if not _is_json_number(v) or (isinstance(v, float) and (not math.isfinite(v) or v != int(v))):
+                raise LayoutError(source, f"coordinate {f}={_short(v)} is not an integer", key)
             if v < 0:
-                raise LayoutError(source, f"coordinate {f}={v!r} is negative", key)
+                raise LayoutError(source, f"coordinate {f}={_short(v)} is negative", key)
+            if v > MAX_COORD:
+                raise LayoutError(source, f"coordinate {f}={_short(v)} is too large (at most {MAX_COORD})", key)
             xyz.append(int(v))
         bid = str(b["brick_id"])
         if bid not in lib.bricks:
@@ -103,8 +106,8 @@ def parse_json_layout(raw, library: Library | None = None, source: str = "<memor
         h, w, m = lib.bricks[bid]
         extra = b.get("mass")  # optional per-brick override (external loads)
         if extra is not None:
-            if isinstance(extra, bool) or not isinstance(extra, (int, float)) or not math.isfinite(extra) or extra < 0:
-                raise LayoutError(source, f"mass must be a finite number >= 0, got {extra!r}", key)
+            if not _is_json_number(extra) or not _finite(extra) or extra < 0:
+                raise LayoutError(source, f"mass must be a finite number >= 0, got {_short(extra)}", key)
             m = float(extra)
         keys.append(str(key))
         pos.append(xyz)
@@ -125,15 +128,24 @@ def parse_text_layout(text: str, source: str = "<memory>") -> Layout:
         key = str(lineno)
         m = _TEXT_LINE.match(s)
         if not m:
-            raise LayoutError(source, f"line {lineno}: cannot parse {s!r} (expected 'HxW (x,y,z)')", key)
+            raise LayoutError(source, f"line {lineno}: cannot parse {_short(s, 80)} (expected 'HxW (x,y,z)')", key)
+        if max(len(g.lstrip("0")) for g in m.group(1, 2)) > 4:  # no library brick is that long
+            raise LayoutError(source, f"line {lineno}: {_cut(m.group(1))}x{_cut(m.group(2))} "
+                                      "is not a library brick", key)
         h, w = int(m.group(1)), int(m.group(2))
         coords = []
         for tok in m.group(3, 4, 5):
-            v = float(tok)
-            if v != int(v):
-                raise LayoutError(source, f"line {lineno}: coordinate {tok} is not an integer", key)
+            try:
+                v = float(tok)
+            except ValueError:
+                raise LayoutError(source, f"line {lineno}: coordinate {_short(tok)} is not a number", key) from None
+            if not math.isfinite(v) or v != int(v):
+                raise LayoutError(source, f"line {lineno}: coordinate {_cut(tok)} is not an integer", key)
             if v < 0:
-                raise LayoutError(source, f"line {lineno}: coordinate {tok} is negative", key)
+                raise LayoutError(source, f"line {lineno}: coordinate {_cut(tok)} is negative", key)
+            if v > MAX_COORD:
+                raise LayoutError(source, f"line {lineno}: coordinate {_cut(tok)} is too large "
+                                          f"(at most {MAX_COORD})", key)
             coords.append(int(v))
         dims = (min(h, w), max(h, w))
         if dims not in TABLE_I_MASS_KG:
@@ -162,47 +174,127 @@ def _library_id_for(sx: int, sy: int) -> tuple[str, int]:
     return "", 0
 
 
-def layout_to_json_dict(layout: Layout) -> dict:
-    """Layout -> StableLego JSON object (needs library ids)."""
+def layout_to_json_dict(layout: Layout, library: Library | str | None = None) -> dict:
+    """Layout -> StableLego JSON object.
+
+    Bricks keep their library id and ori; bricks without one get the id of
+    the real brick of their size. A brick whose mass differs from its
+    library mass (an external load) gets a ``"mass"`` field, which the reader
+    accepts, so masses round-trip.
+
+    Raises LayoutError (naming ``layout.source`` and the brick) for a brick
+    with no library id (e.g. 3x3) or whose size does not match its id.
+    """
+    lib = _as_library(library)
+    src = layout.source
     out = {}
     for i, k in enumerate(layout.keys):
-        bid = layout.brick_id[i] or _library_id_for(*layout.size[i].tolist())[0]
-        ori = int(layout.ori[i]) if layout.brick_id[i] else _library_id_for(*layout.size[i].tolist())[1]
+        sx, sy = (int(v) for v in layout.size[i])
+        m = float(layout.mass[i])
+        bid = layout.brick_id[i]
+        if bid:
+            ori = int(layout.ori[i])
+        else:
+            bid, ori = _library_id_for(sx, sy)
+            if not bid:
+                raise LayoutError(
+                    src, f"{sx}x{sy} brick has no StableLego library id, so it cannot be written as JSON", k
+                )
+        entry = lib.bricks.get(bid)
+        write_mass = entry is None  # an id of another library: keep the mass explicit
+        if entry is not None:
+            h, w, lib_m = entry
+            if (sx, sy) != ((h, w) if ori == 0 else (w, h)):
+                raise LayoutError(
+                    src,
+                    f"size {sx}x{sy} does not match brick_id {bid!r} ({h}x{w}) with ori {ori}; cannot write it",
+                    k,
+                )
+            write_mass = not math.isclose(m, lib_m, rel_tol=1e-12, abs_tol=0.0)
         x, y, z = (int(v) for v in layout.pos[i])
-        out[k] = {"x": x, "y": y, "z": z, "brick_id": int(bid) if bid.isdigit() else bid, "ori": ori}
+        d = {"x": x, "y": y, "z": z, "brick_id": int(bid) if bid.isdigit() else bid, "ori": ori}
+        if write_mass:
+            d["mass"] = m
+        out[k] = d
     return out
 
 
 def layout_to_text(layout: Layout) -> str:
-    """Layout -> text format, one ``HxW (x,y,z)`` line per brick."""
-    lines = [
-        f"{int(s[0])}x{int(s[1])} ({int(p[0])},{int(p[1])},{int(p[2])})"
-        for p, s in zip(layout.pos, layout.size)
-    ]
+    """Layout -> text format, one ``HxW (x,y,z)`` line per brick.
+
+    The text format knows only the real bricks of paper Table I with their
+    Table I masses: the 200 g load block (id "1"), other sizes and other
+    masses raise LayoutError (naming ``layout.source`` and the brick) instead
+    of being silently lost.
+    """
+    src = layout.source
+    lines = []
+    for i, k in enumerate(layout.keys):
+        sx, sy = (int(v) for v in layout.size[i])
+        x, y, z = (int(v) for v in layout.pos[i])
+        if layout.brick_id[i] == "1":
+            raise LayoutError(src, "the 200 g load block (brick_id 1) cannot be written as text; use JSON", k)
+        dims = (min(sx, sy), max(sx, sy))
+        if dims not in TABLE_I_MASS_KG:
+            raise LayoutError(src, f"{sx}x{sy} is not a library brick; cannot write it as text", k)
+        m = float(layout.mass[i])
+        if not math.isclose(m, TABLE_I_MASS_KG[dims], rel_tol=1e-9, abs_tol=0.0):
+            raise LayoutError(
+                src,
+                f"mass {m:g} kg differs from the {sx}x{sy} brick's {TABLE_I_MASS_KG[dims]:g} kg; "
+                "the text format cannot express it (use JSON)",
+                k,
+            )
+        lines.append(f"{sx}x{sy} ({x},{y},{z})")
     return "\n".join(lines) + "\n"
 
 
-def write_layout(layout: Layout, path: str, fmt: str | None = None) -> None:
-    """Write ``layout`` atomically as JSON (default for .json) or text."""
+def write_layout(layout: Layout, path: str, fmt: str | None = None, library: Library | str | None = None) -> None:
+    """Write ``layout`` atomically as JSON (default) or text (``.txt`` or ``fmt="text"``).
+
+    Raises LayoutError naming ``path`` and the brick when the format cannot
+    represent a brick; nothing is written then.
+    """
     fmt = fmt or ("text" if path.endswith(".txt") else "json")
-    if fmt == "text":
-        atomic_write_text(path, layout_to_text(layout))
-    else:
-        atomic_write_text(path, json.dumps(layout_to_json_dict(layout), indent=1) + "\n")
+    if fmt not in ("json", "text"):
+        raise ValueError(f"unknown layout format {fmt!r} (expected 'json' or 'text')")
+    try:
+        if fmt == "text":
+            text = layout_to_text(layout)
+        else:
+            d = layout_to_json_dict(layout) if library is None else layout_to_json_dict(layout, library)
+            text = json.dumps(d, indent=1) + "\n"
+    except LayoutError as exc:
+        if exc.source != layout.source:  # e.g. an unreadable library file
+            raise
+        raise LayoutError(path, exc.message, exc.key) from None
+    atomic_write_text(path, text)
 
 
 def atomic_write_text(path: str, text: str) -> None:
-    """Write a file via a temporary sibling and rename: never half-written."""
+    """Write a UTF-8 file via a temporary sibling and rename: never half-written.
+
+    The file gets the permissions of a plainly created one (0o666 & ~umask),
+    not the 0600 of the temporary file.
+    """
     d = os.path.dirname(os.path.abspath(path))
     fd, tmp = tempfile.mkstemp(dir=d, prefix=".tmp-", suffix=os.path.basename(path))
     try:
-        with os.fdopen(fd, "w") as fh:
+        with os.fdopen(fd, "w", encoding="utf-8") as fh:
             fh.write(text)
+        os.chmod(tmp, 0o666 & ~_umask())
         os.replace(tmp, path)
     except BaseException:
         if os.path.exists(tmp):
             os.unlink(tmp)
         raise
+
+
+def _umask() -> int:
+    """The process umask (read by setting and restoring it)."""
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
 
 
 def _as_library(library) -> Library:
@@ -230,8 +322,58 @@ def _read_text(path: str) -> str:
 
 
 def _read_json(path: str):
+    """Parse a layout JSON file; duplicate brick keys (or duplicate fields of
+    a brick), which json.loads would silently merge, raise LayoutError."""
     text = _read_text(path)
+    dups: list[tuple[dict, str]] = []
+
+    def pairs_hook(pairs):
+        obj = dict(pairs)
+        if len(obj) != len(pairs):
+            seen = set()
+            for k, _ in pairs:
+                if k in seen:
+                    dups.append((obj, k))
+                    break
+                seen.add(k)
+        return obj
+
     try:
-        return json.loads(text)
+        raw = json.loads(text, object_pairs_hook=pairs_hook)
     except json.JSONDecodeError as exc:
         raise LayoutError(path, f"not valid JSON: {exc}") from None
+    except ValueError as exc:  # e.g. an integer of more than 4300 digits
+        raise LayoutError(path, f"not valid JSON: {_cut(str(exc), 120)}") from None
+    except RecursionError:
+        raise LayoutError(path, "not valid JSON: nested too deeply") from None
+    if dups:
+        for obj, k in dups:
+            if obj is raw:
+                raise LayoutError(path, "duplicate brick key", k)
+        if isinstance(raw, dict):
+            for key, b in raw.items():
+                for obj, f in dups:
+                    if obj is b:
+                        raise LayoutError(path, f"duplicate field {f!r}", key)
+    return raw
+
+
+def _is_json_number(v) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool)
+
+
+def _finite(v) -> bool:
+    """math.isfinite that also takes integers too large for a float."""
+    try:
+        return math.isfinite(v)
+    except OverflowError:
+        return False
+
+
+def _short(v, limit: int = 40) -> str:
+    """repr of a value, cut to ``limit`` characters (keeps error messages readable)."""
+    return _cut(repr(v), limit)
+
+
+def _cut(s: str, limit: int = 40) -> str:
+    return s if len(s) <= limit else s[: limit - 3] + "..."

@@ -22,6 +22,9 @@ __all__ = [
     "default_library",
     "TABLE_I_MASS_KG",
     "make_layout",
+    "MAX_COORD",
+    "MAX_SIZE",
+    "MAX_GRID_CELLS",
 ]
 
 # Paper Table I, in kg, keyed by the sorted (short, long) footprint.
@@ -36,6 +39,14 @@ TABLE_I_MASS_KG: dict[tuple[int, int], float] = {
     (2, 6): 3.23e-3,
 }
 
+# Input bounds: a cell coordinate may be at most MAX_COORD and a brick at most
+# MAX_SIZE studs long; the dense occupancy grid may have at most MAX_GRID_CELLS
+# cells (1 GiB of int32). They keep a typo or a hostile file from asking for a
+# giant allocation.
+MAX_COORD = 2**16
+MAX_SIZE = 64
+MAX_GRID_CELLS = 2**28
+
 _DEFAULT_LIBRARY_PATH = os.path.join(os.path.dirname(__file__), "lego_library.json")
 
 
@@ -45,6 +56,7 @@ class LayoutError(ValueError):
     def __init__(self, source: str, message: str, key: str | None = None):
         self.source = source
         self.key = key
+        self.message = message
         where = f"{source}: brick {key!r}: " if key is not None else f"{source}: "
         super().__init__(where + message)
 
@@ -160,8 +172,9 @@ def make_layout(
     """Build and validate a :class:`Layout` from plain arrays.
 
     Raises LayoutError (naming ``source`` and the brick) on empty layouts,
-    duplicate keys, non-integer or negative cells, bad sizes, NaN or negative
-    masses, and overlapping bricks.
+    duplicate keys, arrays of the wrong shape, non-integer, negative or too
+    large (> MAX_COORD) cells, bad or too large (> MAX_SIZE) sizes, NaN or
+    negative masses, ori values other than 0/1, and overlapping bricks.
     """
     keys = tuple(str(k) for k in keys)
     n = len(keys)
@@ -170,11 +183,12 @@ def make_layout(
     if len(set(keys)) != n:
         dup = next(k for k in keys if keys.count(k) > 1)
         raise LayoutError(source, "duplicate brick key", dup)
-    pos_f = np.asarray(pos, dtype=np.float64).reshape(n, 3)
-    size_f = np.asarray(size, dtype=np.float64).reshape(n, 2)
-    mass = np.asarray(mass, dtype=np.float64).reshape(n)
+    pos_f = _as_float_array(pos, (n, 3), "coordinates", source)
+    size_f = _as_float_array(size, (n, 2), "sizes", source)
+    mass = _as_float_array(mass, (n,), "masses", source)
     for arr, what in ((pos_f, "coordinates"), (size_f, "size")):
-        bad = ~np.isfinite(arr).all(axis=1) | (arr != np.round(arr)).any(axis=1)
+        with np.errstate(invalid="ignore"):
+            bad = ~np.isfinite(arr).all(axis=1) | (arr != np.round(arr)).any(axis=1)
         if bad.any():
             i = int(np.argmax(bad))
             raise LayoutError(source, f"non-integer {what} {arr[i].tolist()}", keys[i])
@@ -182,20 +196,43 @@ def make_layout(
     if bad.any():
         i = int(np.argmax(bad))
         raise LayoutError(source, f"negative coordinates {pos_f[i].astype(int).tolist()}", keys[i])
+    bad = (pos_f > MAX_COORD).any(axis=1)
+    if bad.any():
+        i = int(np.argmax(bad))
+        raise LayoutError(
+            source, f"coordinates {[int(v) for v in pos_f[i]]} too large (at most {MAX_COORD})", keys[i]
+        )
     bad = (size_f < 1).any(axis=1)
     if bad.any():
         i = int(np.argmax(bad))
         raise LayoutError(source, f"bad brick size {size_f[i].astype(int).tolist()}", keys[i])
+    bad = (size_f > MAX_SIZE).any(axis=1)
+    if bad.any():
+        i = int(np.argmax(bad))
+        raise LayoutError(
+            source, f"brick size {[int(v) for v in size_f[i]]} too large (at most {MAX_SIZE} studs)", keys[i]
+        )
     bad = ~np.isfinite(mass) | (mass < 0)
     if bad.any():
         i = int(np.argmax(bad))
         raise LayoutError(source, f"mass must be a finite number >= 0, got {mass[i]}", keys[i])
     if brick_id is None:
         brick_id = ("",) * n
-    ori_arr = np.zeros(n, np.int64) if ori is None else np.asarray(ori, np.int64).reshape(n)
+    elif isinstance(brick_id, str) or len(brick_id) != n:
+        got = "a string" if isinstance(brick_id, str) else f"{len(brick_id)} ids"
+        raise LayoutError(source, f"brick_id must hold one id per brick ({n}), got {got}")
+    if ori is None:
+        ori_arr = np.zeros(n, np.int64)
+    else:
+        ori_f = _as_float_array(ori, (n,), "ori values", source)
+        bad = (ori_f != 0) & (ori_f != 1)
+        if bad.any():
+            i = int(np.argmax(bad))
+            raise LayoutError(source, f"ori must be 0 or 1, got {ori_f[i]:g}", keys[i])
+        ori_arr = ori_f.astype(np.int64)
     pos_i = pos_f.astype(np.int64)
     size_i = size_f.astype(np.int64)
-    _occupancy(pos_i, size_i, source, keys)  # raises on overlap
+    _check_overlap(pos_i, size_i, source, keys)
     return Layout(
         keys=keys,
         pos=pos_i,
@@ -208,11 +245,28 @@ def make_layout(
     )
 
 
-def _occupancy(pos: np.ndarray, size: np.ndarray, source: str, keys) -> np.ndarray:
-    """Vectorised cell expansion; raises LayoutError on the first overlap."""
+def _as_float_array(values, shape: tuple[int, ...], what: str, source: str) -> np.ndarray:
+    """``values`` as a float64 array of ``shape``; LayoutError on junk or a wrong shape."""
+    try:
+        arr = np.asarray(values, dtype=np.float64)
+    except (TypeError, ValueError, OverflowError) as exc:
+        raise LayoutError(source, f"{what} are not numbers: {exc}") from None
+    if arr.size != int(np.prod(shape)):
+        raise LayoutError(source, f"{what} must have shape {shape}, got {arr.shape}")
+    return arr.reshape(shape)
+
+
+def _grid_dims(pos: np.ndarray, size: np.ndarray) -> list[int]:
+    return [int(v) for v in (pos[:, :2] + size).max(axis=0)] + [int(pos[:, 2].max()) + 1]
+
+
+def _check_overlap(pos: np.ndarray, size: np.ndarray, source: str, keys) -> tuple:
+    """Raise LayoutError on the first overlap, without a dense grid.
+
+    Returns (dims, flat cell index, owner) for :func:`_occupancy`.
+    """
     cells, owner = cells_of(pos, size)
-    dims = (pos[:, :2] + size).max(axis=0).tolist() + [int(pos[:, 2].max()) + 1]
-    grid = -np.ones(dims, dtype=np.int32)
+    dims = _grid_dims(pos, size)
     flat = np.ravel_multi_index(cells.T, dims)
     order = np.argsort(flat, kind="stable")
     sf = flat[order]
@@ -225,6 +279,20 @@ def _occupancy(pos: np.ndarray, size: np.ndarray, source: str, keys) -> np.ndarr
             f"overlaps brick {keys[a]!r} at cell {tuple(int(v) for v in c)}",
             keys[b],
         )
+    return dims, flat, owner
+
+
+def _occupancy(pos: np.ndarray, size: np.ndarray, source: str, keys) -> np.ndarray:
+    """Dense (X, Y, Z) grid of brick indices; raises LayoutError on overlap or a huge grid."""
+    dims = _grid_dims(pos, size)
+    cells = int(np.prod(dims, dtype=np.float64))
+    if cells > MAX_GRID_CELLS:
+        raise LayoutError(
+            source,
+            f"layout spans a {dims[0]}x{dims[1]}x{dims[2]} grid ({cells} cells, at most {MAX_GRID_CELLS})",
+        )
+    dims, flat, owner = _check_overlap(pos, size, source, keys)
+    grid = -np.ones(dims, dtype=np.int32)
     grid.reshape(-1)[flat] = owner
     return grid
 
