@@ -121,7 +121,7 @@ def _row_scale(params: Params):
 
 def _ops(prob: Problem, params: Params):
     """Scaled A, A' and the pieces every iteration needs."""
-    s6, w6 = _row_scale(params)
+    s6, w6 = (a.astype(prob.col_coef.dtype) for a in _row_scale(params))
     coef = prob.col_coef * s6 * params.T  # unit force in units of T
     cb = prob.col_brick
     n = prob.gravity.shape[0]
