@@ -339,6 +339,9 @@ def _colorbar(fig, axes, shrink=0.8, location="right", aspect=25):
 # writing
 
 
+from .io import _umask  # noqa: E402  (one umask helper for every atomic writer)
+
+
 def _save(fig: Figure, path: str, dpi: int) -> None:
     """Save as PNG via a temporary sibling and os.replace: never half-written."""
     path = os.fspath(path)
@@ -347,6 +350,7 @@ def _save(fig: Figure, path: str, dpi: int) -> None:
     try:
         with os.fdopen(fd, "wb") as fh:
             fig.savefig(fh, format="png", dpi=dpi, facecolor="white")
+        os.chmod(tmp, 0o666 & ~_umask())
         os.replace(tmp, path)
     except BaseException:
         if os.path.exists(tmp):
