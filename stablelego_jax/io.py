@@ -32,6 +32,7 @@ __all__ = [
     "layout_to_json_dict",
     "layout_to_text",
     "write_layout",
+    "atomic_write",
     "atomic_write_text",
 ]
 
@@ -271,23 +272,30 @@ def write_layout(layout: Layout, path: str, fmt: str | None = None, library: Lib
     atomic_write_text(path, text)
 
 
-def atomic_write_text(path: str, text: str) -> None:
-    """Write a UTF-8 file via a temporary sibling and rename: never half-written.
+def atomic_write(path: str, write, binary: bool = False) -> None:
+    """Write a file via a temporary sibling and rename: never half-written.
 
-    The file gets the permissions of a plainly created one (0o666 & ~umask),
-    not the 0600 of the temporary file.
+    ``write(fh)`` fills the open temporary file (UTF-8 text, or bytes when
+    ``binary``). The file gets the permissions of a plainly created one
+    (0o666 & ~umask), not the 0600 of the temporary file.
     """
+    path = os.fspath(path)
     d = os.path.dirname(os.path.abspath(path))
     fd, tmp = tempfile.mkstemp(dir=d, prefix=".tmp-", suffix=os.path.basename(path))
     try:
-        with os.fdopen(fd, "w", encoding="utf-8") as fh:
-            fh.write(text)
+        with (os.fdopen(fd, "wb") if binary else os.fdopen(fd, "w", encoding="utf-8")) as fh:
+            write(fh)
         os.chmod(tmp, 0o666 & ~_umask())
         os.replace(tmp, path)
     except BaseException:
         if os.path.exists(tmp):
             os.unlink(tmp)
         raise
+
+
+def atomic_write_text(path: str, text: str) -> None:
+    """Write a UTF-8 text file atomically (see :func:`atomic_write`)."""
+    atomic_write(path, lambda fh: fh.write(text))
 
 
 def _umask() -> int:

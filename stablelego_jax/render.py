@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import math
 import os
-import tempfile
 from typing import Sequence
 
 import numpy as np
@@ -339,23 +338,12 @@ def _colorbar(fig, axes, shrink=0.8, location="right", aspect=25):
 # writing
 
 
-from .io import _umask  # noqa: E402  (one umask helper for every atomic writer)
+from .io import atomic_write  # noqa: E402  (the one atomic writer)
 
 
 def _save(fig: Figure, path: str, dpi: int) -> None:
-    """Save as PNG via a temporary sibling and os.replace: never half-written."""
-    path = os.fspath(path)
-    d = os.path.dirname(os.path.abspath(path))
-    fd, tmp = tempfile.mkstemp(dir=d, prefix=".tmp-", suffix=".png")
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            fig.savefig(fh, format="png", dpi=dpi, facecolor="white")
-        os.chmod(tmp, 0o666 & ~_umask())
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    """Save as PNG atomically: never half-written."""
+    atomic_write(path, lambda fh: fig.savefig(fh, format="png", dpi=dpi, facecolor="white"), binary=True)
 
 
 def _panel_size(extent, width_in: float, max_h_in: float, min_in: float = 2.0):
