@@ -16,7 +16,9 @@ from stablelego_jax.io import _library_id_for
 from stablelego_jax.layout import TABLE_I_MASS_KG, Layout, make_layout
 
 __all__ = [
+    "BRICK_SETS",
     "DEFAULT_BRICKS",
+    "parse_bricks",
     "SHAPE_KINDS",
     "merge_voxels",
     "random_blob",
@@ -29,11 +31,60 @@ DEFAULT_BRICKS: tuple[tuple[int, int], ...] = (
     (2, 6), (2, 4), (1, 8), (1, 6), (2, 2), (1, 4), (1, 2), (1, 1),
 )
 
+#: Named brick sets for :func:`merge_voxels` (``--bricks`` of the CLI). Each
+#: holds 1x1 so that every voxel can be covered.
+BRICK_SETS: dict[str, tuple[tuple[int, int], ...]] = {
+    # all eight bricks of paper Table I (= the StableLego library, ids 2-12)
+    "all": DEFAULT_BRICKS,
+    # 1-wide bricks only (walls, thin shells)
+    "1xn": ((1, 8), (1, 6), (1, 4), (1, 2), (1, 1)),
+    # 2-wide bricks, 1x2 and 1x1 only as fillers
+    "2xn": ((2, 6), (2, 4), (2, 2), (1, 2), (1, 1)),
+    # the classic small set
+    "basic": ((2, 4), (2, 2), (1, 4), (1, 2), (1, 1)),
+    # unit bricks (every voxel its own 1x1)
+    "unit": ((1, 1),),
+}
+
 SHAPE_KINDS: tuple[str, ...] = ("blob", "boxes", "spheres", "arch", "overhang", "floating")
 
 
 # --------------------------------------------------------------------------
 # merge
+
+
+def parse_bricks(spec) -> tuple[tuple[int, int], ...]:
+    """A brick set from a name of BRICK_SETS ("all", "1xn", "2xn", "basic",
+    "unit") or a comma-separated list of footprints ("2x4,2x2,1x2,1x1"), or a
+    sequence of (a, b) pairs. Returns (short, long) footprints, largest
+    first. Raises ValueError for a size outside paper Table I or a set
+    without 1x1."""
+    if isinstance(spec, str):
+        name = spec.strip().lower()
+        if name in BRICK_SETS:
+            return BRICK_SETS[name]
+        pairs = []
+        for tok in name.replace(" ", "").split(","):
+            if not tok:
+                continue
+            parts = tok.split("x")
+            if len(parts) != 2 or not all(p.isdigit() for p in parts):
+                raise ValueError(f"bad brick {tok!r} in {spec!r}: expected a set name "
+                                 f"({', '.join(BRICK_SETS)}) or sizes like 2x4,1x2,1x1")
+            pairs.append((int(parts[0]), int(parts[1])))
+    else:
+        pairs = [(int(a), int(b)) for a, b in spec]
+    out = []
+    for a, b in pairs:
+        t = (min(a, b), max(a, b))
+        if t not in TABLE_I_MASS_KG:
+            raise ValueError(f"{a}x{b} is not a library brick (Table I sizes: "
+                             f"{', '.join(f'{p}x{q}' for p, q in TABLE_I_MASS_KG)})")
+        if t not in out:
+            out.append(t)
+    if (1, 1) not in out:
+        raise ValueError("a brick set must contain 1x1 so that every voxel can be covered")
+    return tuple(sorted(out, key=lambda t: (-t[0] * t[1], -t[0])))
 
 
 def _wsum(a: np.ndarray, sx: int, sy: int) -> np.ndarray:
@@ -66,9 +117,9 @@ def merge_voxels(
 ) -> Layout:
     """Cover the occupied cells of ``vox`` (X, Y, Z) bool exactly with bricks.
 
-    Greedy, layer by layer from the bottom, brick types in the order of
-    ``bricks`` ((short, long) footprints, largest first; must contain (1, 1)
-    and be Table I sizes). Within a type, windows are taken by priority:
+    Greedy, layer by layer from the bottom, brick types largest first
+    (``bricks``: footprints or a set name, see :func:`parse_bricks`; must
+    contain 1x1 and be Table I sizes). Within a type, windows are taken by priority:
     anchored windows (at least one cell with support below) that cover the
     most unsupported cells first (each weighted by its distance to the
     nearest supported cell), then the layer's preferred orientation
@@ -82,12 +133,7 @@ def merge_voxels(
         raise ValueError(f"vox must be a 3-D (X, Y, Z) array, got shape {vox.shape}")
     if not vox.any():
         raise ValueError("vox has no occupied cell")
-    types = [tuple(sorted((int(a), int(b)))) for a, b in bricks]
-    for t in types:
-        if t not in TABLE_I_MASS_KG:
-            raise ValueError(f"brick footprint {t} is not a Table I brick")
-    if (1, 1) not in types:
-        raise ValueError("bricks must contain (1, 1) so that every voxel can be covered")
+    types = list(parse_bricks(bricks))
     X, Y, Z = vox.shape
     R = X * Y + 1  # rank range: scan order tie-break below any structural step
     rng = np.random.default_rng(seed)

@@ -122,3 +122,37 @@ def test_json_roundtrip():
     assert np.array_equal(back.pos, layout.pos)
     assert np.array_equal(back.size, layout.size)
     assert np.allclose(back.mass, layout.mass)
+
+
+def test_brick_sets_and_parse_bricks():
+    from generators.voxels import BRICK_SETS, DEFAULT_BRICKS, parse_bricks
+
+    assert parse_bricks("all") == DEFAULT_BRICKS
+    assert parse_bricks("ALL") == DEFAULT_BRICKS
+    assert parse_bricks("1x1, 4x2,2x2,2x4") == ((2, 4), (2, 2), (1, 1))  # sorted, deduplicated
+    assert parse_bricks([(1, 1), (2, 1)]) == ((1, 2), (1, 1))
+    for name, bricks in BRICK_SETS.items():
+        assert (1, 1) in bricks and parse_bricks(name) == bricks
+    for bad in ("3x3,1x1", "2x4", "2x4;1x1", "big", "1x1,x2"):
+        with pytest.raises(ValueError):
+            parse_bricks(bad)
+    vox = random_voxel_shape(2, grid=10, kind="boxes")
+    for name in BRICK_SETS:
+        layout = merge_voxels(vox, bricks=name)
+        _check_merge(vox, layout)
+        used = set(map(tuple, np.sort(layout.size, axis=1).tolist()))
+        assert used <= set(BRICK_SETS[name])
+    # order of the given set does not matter: largest bricks are still tried first
+    a = merge_voxels(vox, bricks=[(1, 1), (1, 2), (2, 4)])
+    b = merge_voxels(vox, bricks=[(2, 4), (1, 2), (1, 1)])
+    assert np.array_equal(a.pos, b.pos) and np.array_equal(a.size, b.size)
+    assert (np.sort(a.size, axis=1) == [2, 4]).all(axis=1).any()
+
+
+def test_seed_changes_tie_breaks_only():
+    vox = np.ones((9, 7, 3), bool)
+    layouts = [merge_voxels(vox, seed=s) for s in range(6)]
+    shapes = {tuple(sorted(zip(map(tuple, lay.pos.tolist()), map(tuple, lay.size.tolist())))) for lay in layouts}
+    assert len(shapes) > 1  # the seed is not ignored
+    for lay in layouts:
+        _check_merge(vox, lay)
