@@ -13,7 +13,7 @@ from scipy.optimize import linprog
 
 from .model import NORMAL, SIDE, ForceModel
 
-__all__ = ["solve_exact", "ExactResult"]
+__all__ = ["solve_exact", "ExactResult", "EXACT_METHODS"]
 
 
 class ExactResult(dict):
@@ -40,7 +40,35 @@ def equilibrium_matrix(model: ForceModel) -> sp.csr_matrix:
     return A.tocsr()
 
 
-def solve_exact(model: ForceModel) -> ExactResult:
+#: HiGHS methods of scipy.optimize.linprog that solve_exact accepts.
+EXACT_METHODS = ("highs", "highs-ds", "highs-ipm")
+
+
+def solve_exact(model: ForceModel, method: str = "highs") -> ExactResult:
+    """Solve the Eq. 9 LP exactly with HiGHS ``method`` ("highs": HiGHS
+    chooses, in practice dual simplex; "highs-ds"; "highs-ipm": interior
+    point with crossover, much faster on layouts of hundreds of bricks).
+
+    When ``method`` returns no solution (HiGHS' simplex sometimes stops with
+    "Status 0: Not Set" on large layouts), the LP is solved again with
+    "highs-ipm"; ``status`` then says so. Both return an optimal vertex; on a
+    degenerate LP they may be different optimal vertices.
+    """
+    if method not in EXACT_METHODS:
+        raise ValueError(f"method must be one of {EXACT_METHODS}, got {method!r}")
+    res = _solve_lp(model, method)
+    if res.status != 0 and method != "highs-ipm":
+        first = res.message
+        res = _solve_lp(model, "highs-ipm")
+        res.message = f"{res.message} (highs-ipm after {method}: {first})"
+    f = np.zeros(model.m_pad)
+    if res.x is not None:
+        f[:model.m] = res.x[:model.m]
+    return ExactResult(f=f, objective=float(res.fun) if res.fun is not None else float("nan"),
+                       status=res.message, success=bool(res.status == 0))
+
+
+def _solve_lp(model: ForceModel, method: str):
     p = model.params
     m, n = model.m, model.n
     kind = model.col_kind[:m]
@@ -70,9 +98,4 @@ def solve_exact(model: ForceModel) -> ExactResult:
     bounds = np.concatenate(
         [np.stack([lo, np.full(m, np.inf)], 1), np.tile([0.0, np.inf], (k + 12 * n + n, 1))]
     )
-    res = linprog(c, A_ub=A_ub, b_ub=b_ub, A_eq=A_eq, b_eq=b_eq, bounds=bounds, method="highs")
-    f = np.zeros(model.m_pad)
-    if res.x is not None:
-        f[:m] = res.x[:m]
-    return ExactResult(f=f, objective=float(res.fun) if res.fun is not None else float("nan"),
-                       status=res.message, success=bool(res.status == 0))
+    return linprog(c, A_ub=A_ub, b_ub=b_ub, A_eq=A_eq, b_eq=b_eq, bounds=bounds, method=method)

@@ -41,3 +41,38 @@ def test_floating_brick_gets_an_answer():
     assert not a.stable and a.weakest == "float"
     # its residual is its own weight
     assert abs(a.residual[1, 2]) == pytest.approx(0.00216 * 9.8, rel=1e-6)
+
+
+@pytest.mark.parametrize("name", REF)
+def test_interior_point_method_same_outcome(name):
+    a = analyze(os.path.join(EXAMPLES, "stablelego", name), solver="exact")
+    b = analyze_layout(a.layout, solver="exact", exact_method="highs-ipm")
+    assert b.converged
+    assert b.stable == a.stable
+    assert b.objective == pytest.approx(a.objective, rel=1e-6, abs=1e-12)
+    if not a.stable:
+        assert b.weakest == a.weakest
+
+
+def test_exact_falls_back_to_interior_point(monkeypatch):
+    import scipy.optimize
+
+    from stablelego_jax import exact
+    from stablelego_jax.model import compile_layout
+
+    lay = load_layout(os.path.join(EXAMPLES, "stablelego", "stair_19.json"))
+    model = compile_layout(lay)
+    calls = []
+
+    def flaky(*args, method, **kw):
+        calls.append(method)
+        if method != "highs-ipm":  # what HiGHS' simplex does on some big layouts
+            return scipy.optimize.OptimizeResult(x=None, fun=None, status=4, message="(HiGHS Status 0: Not Set)")
+        return scipy.optimize.linprog(*args, method=method, **kw)
+
+    monkeypatch.setattr(exact, "linprog", flaky)
+    r = exact.solve_exact(model)
+    assert calls == ["highs", "highs-ipm"]
+    assert r.success and "highs-ipm after highs" in r.status
+    with pytest.raises(ValueError):
+        exact.solve_exact(model, method="simplex")
