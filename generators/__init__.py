@@ -1,4 +1,15 @@
-"""Layout generators: procedural families and voxel shapes merged into bricks."""
+"""Layout generators: procedural families, voxel shapes and meshes merged into
+bricks, and StableLego-style dataset objects."""
+from .dataset import (
+    OBJECT_FILES,
+    find_objects,
+    generate_from_mesh,
+    generate_from_voxels,
+    read_dataset,
+    read_object,
+    write_object,
+)
+from .mesh import MeshError, load_mesh, mesh_to_voxels, voxelize
 from .procedural import (
     FAMILIES,
     LOAD_BLOCK_KG,
@@ -14,31 +25,46 @@ from .procedural import (
     with_floating,
 )
 from .voxels import (
+    BRICK_SETS,
     DEFAULT_BRICKS,
     SHAPE_KINDS,
     ground,
     merge_voxels,
+    parse_bricks,
     random_blob,
     random_voxel_shape,
 )
 
 __all__ = [
+    "BRICK_SETS",
     "DEFAULT_BRICKS",
+    "MeshError",
+    "OBJECT_FILES",
     "FAMILIES",
     "LOAD_BLOCK_KG",
     "SHAPE_KINDS",
     "bridge",
     "cuboid",
+    "find_objects",
+    "generate_from_mesh",
+    "generate_from_voxels",
     "ground",
     "lever",
+    "load_mesh",
     "merge_voxels",
+    "mesh_to_voxels",
     "pallet_of_boxes",
+    "parse_bricks",
     "random_blob",
     "random_family_layout",
     "random_voxel_shape",
+    "read_dataset",
+    "read_object",
     "stairs",
     "tower",
     "voxel_layout",
+    "voxelize",
     "wall",
     "with_floating",
+    "write_object",
 ]
