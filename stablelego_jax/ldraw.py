@@ -114,6 +114,8 @@ def layout_to_ldr(
     if header:
         src = layout.source if layout.source and not layout.source.startswith("<") else ""
         stem = os.path.splitext(os.path.basename(os.path.normpath(src)))[0] if src else "layout"
+        if stem == "task_graph":  # a dataset object: name it after its folder
+            stem = os.path.basename(os.path.dirname(os.path.abspath(src))) or stem
         lines.append(f"0 {title if title is not None else stem}")
         lines.append(f"0 Name: {name if name is not None else stem + '.ldr'}")
         lines.append("0 Author: stablelego-jax")

@@ -50,6 +50,13 @@ def test_generate_shard_then_analyze_it(tmp_path, capsys):
     assert rc == 0
     recs = [json.loads(ln) for ln in o.splitlines()]
     assert len(recs) == 3 and all(r["stable"] for r in recs)
+    # and a dataset object exports to LDraw under its folder's name
+    ldr = tmp_path / "tall.ldr"
+    assert cli.main(["export", str(out / "tall"), "--ldr", str(ldr)]) == 0
+    capsys.readouterr()
+    assert ldr.read_text().splitlines()[0] == "0 tall"
+    back = read_ldr(str(ldr))
+    assert np.array_equal(back.pos, obj.layout.pos) and np.array_equal(back.size, obj.layout.size)
 
 
 def test_generate_json_overwrite_and_argument_errors(tmp_path, capsys):
