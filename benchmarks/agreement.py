@@ -26,6 +26,11 @@ import numpy as np  # noqa: E402
 
 from generators.procedural import random_family_layout  # noqa: E402
 from stablelego_jax.api import analyze_layout  # noqa: E402
+from stablelego_jax.io import atomic_write_text  # noqa: E402
+from stablelego_jax.solver import SolverOptions  # noqa: E402
+
+# rows computed with other solver settings are recomputed, never mixed in
+SETTINGS = repr(SolverOptions())
 
 
 def run_one(seed: int) -> dict:
@@ -52,6 +57,7 @@ def run_one(seed: int) -> dict:
         "iters": jx.iters,
         "time_exact_s": ex.time_s,
         "time_jax_s": jx.time_s,
+        "settings": SETTINGS,
     }
 
 
@@ -95,10 +101,15 @@ def main() -> None:
             for line in fh:
                 try:
                     r = json.loads(line)
-                    done[r["seed"]] = r
+                    if r.get("settings") == SETTINGS:
+                        done[r["seed"]] = r
                 except (json.JSONDecodeError, KeyError):
                     pass  # a torn last line from an interrupted run
     t0 = time.time()
+    if os.path.exists(args.out):
+        # keep only rows of the current settings (rewritten atomically)
+        keep = "".join(json.dumps(done[s]) + "\n" for s in sorted(done))
+        atomic_write_text(args.out, keep)
     with open(args.out, "a") as fh:
         for seed in range(args.n):
             if seed in done:
