@@ -174,6 +174,29 @@ def cmd_export(args) -> int:
     return 0
 
 
+def cmd_score(args) -> int:
+    from .batch import score_files
+
+    if args.batch < 1:
+        print("error: --batch must be >= 1", file=sys.stderr)
+        return 2
+    try:
+        st = score_files(
+            args.inputs, args.out, solver=args.solver, batch=args.batch, devices=args.devices,
+            write_scores=args.write_scores, library=args.library, progress=not args.quiet,
+        )
+    except (ValueError, OSError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    print(
+        f"{st.scored} scored, {st.skipped} already in {args.out}, {st.errors} errors, "
+        f"{st.not_converged} not converged; solve {st.solve_s:.1f} s, compile {st.compile_s:.1f} s "
+        f"({st.compiles} shapes), wall {st.wall_s:.1f} s",
+        file=sys.stderr,
+    )
+    return 1 if st.errors or st.not_converged else 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="stablelego", description="Stability analysis of Lego brick layouts.")
     sub = p.add_subparsers(dest="cmd", required=True)
@@ -184,6 +207,25 @@ def build_parser() -> argparse.ArgumentParser:
     a.add_argument("--json", action="store_true", help="one JSON object per line")
     a.add_argument("--png", metavar="P", help="heat map PNG (a folder when several files are given)")
     a.set_defaults(func=cmd_analyze)
+
+    sc = sub.add_parser(
+        "score",
+        help="score many layouts in batches into a JSON-lines file (resumable)",
+        description="Score every layout of INPUT (files, folders of layout files, StableLego dataset folders "
+                    "with one object per sub-folder) into RESULTS, one JSON object per line as 'analyze "
+                    "--json'. Layouts are grouped by size and solved in vmap-ed batches sharded over the "
+                    "local devices. Rerunning skips the layouts already in RESULTS.",
+    )
+    sc.add_argument("inputs", nargs="+", metavar="INPUT")
+    sc.add_argument("--out", required=True, metavar="RESULTS", help="JSON-lines results file (appended)")
+    sc.add_argument("--solver", choices=["jax", "exact"], default="jax")
+    sc.add_argument("--batch", type=int, default=64, help="most layouts per solver call (default 64)")
+    sc.add_argument("--devices", default="all", help="'all' or the number of local devices to shard over")
+    sc.add_argument("--write-scores", action="store_true",
+                    help="also write stability_score.npy beside each dataset object")
+    sc.add_argument("--library", help="brick library JSON (default: the StableLego library)")
+    sc.add_argument("--quiet", action="store_true", help="no progress bar")
+    sc.set_defaults(func=cmd_score)
 
     from generators.mesh import FILL_MODES, UP_AXES
 

@@ -1,0 +1,315 @@
+"""Batched scoring of many layouts: size buckets, ``vmap``, device sharding,
+resumable JSON-lines results.
+
+Flow per chunk of inputs: read and compile each layout (numpy), pad it to
+its size bucket (``api.pad_to_bucket``), group equal bucket shapes, and
+solve each group in batches with one jit-compiled, ``vmap``-ed solver per
+(bucket shape, batch size), split over the local devices with
+``jax.shard_map`` (each device runs its own while-loop, so a device stops
+as soon as its own layouts have converged). Compiled solvers are cached for
+the whole run; compile time is measured apart from solve time.
+
+Results: one JSON object per line, as ``stablelego analyze --json``; a bad
+layout gets ``{"file", "error"}``. Lines are appended and flushed batch by
+batch, so an interrupted run loses at most the batch in flight; a torn last
+line is dropped on the next run, which skips every file already present.
+"""
+from __future__ import annotations
+
+import dataclasses
+import functools
+import json
+import os
+import sys
+import time
+from typing import Iterable, Sequence
+
+import jax
+import numpy as np
+
+from .api import _finish
+from .exact import solve_exact
+from .io import atomic_write, atomic_write_text, load_layout
+from .layout import LayoutError
+from .model import Params, bucket_size, compile_layout
+from .solver import SolverOptions, solve, stack_problems, to_problem
+
+__all__ = ["find_layouts", "read_results", "ScoreStats", "score_files", "make_batch_solver", "batch_sizes"]
+
+LAYOUT_EXTS = (".json", ".txt", ".ldr")
+# files that sit beside StableLego layouts but are not layouts
+NOT_LAYOUTS = {"lego_library.json", "labels.json", "config.json", "meta.json", "demo_examples.json",
+               "few_shot_examples.json"}
+
+
+def find_layouts(inputs: Sequence[str]) -> list[str]:
+    """Expand ``inputs`` (files, folders of layout files, dataset folders with
+    one object per sub-folder) into layout paths, in a stable order.
+
+    A folder holding ``task_graph.json`` is one dataset object; any other
+    folder is searched recursively for dataset objects and layout files.
+    A missing input is kept, so that it is reported as an error line.
+    """
+    out: list[str] = []
+    for inp in inputs:
+        if not os.path.isdir(inp):
+            out.append(inp)
+            continue
+        for d, subdirs, files in os.walk(inp):
+            subdirs[:] = sorted(s for s in subdirs if not s.startswith("."))
+            if "task_graph.json" in files:
+                out.append(d)
+                subdirs[:] = []
+                continue
+            for f in sorted(files):
+                if f.endswith(LAYOUT_EXTS) and f not in NOT_LAYOUTS and not f.startswith("."):
+                    out.append(os.path.join(d, f))
+    seen: set = set()
+    return [p for p in out if not (p in seen or seen.add(p))]
+
+
+def read_results(out: str) -> dict:
+    """{file: record} of a results file; a torn or corrupt line is dropped and
+    the file rewritten without it (atomically)."""
+    done: dict = {}
+    if not os.path.exists(out):
+        return done
+    good, torn = [], 0
+    with open(out, encoding="utf-8") as fh:
+        for line in fh:
+            try:
+                rec = json.loads(line)
+                if not isinstance(rec, dict) or "file" not in rec or not line.endswith("\n"):
+                    raise ValueError
+            except ValueError:
+                torn += 1
+                continue
+            done[rec["file"]] = rec
+            good.append(line)
+    if torn:
+        atomic_write_text(out, "".join(good))
+    return done
+
+
+def batch_sizes(n_pad: int, batch: int, n_dev: int, mem_budget: float = 2e9) -> int:
+    """Largest batch for bricks bucket ``n_pad``: at most ``batch``, within
+    ``mem_budget`` bytes for the dense (6n)^2 factor of every member, and a
+    multiple of ``n_dev``."""
+    per = 3 * (6 * n_pad) ** 2 * 8  # M, its factor and a work copy, float64
+    b = int(max(1, min(batch, mem_budget * n_dev // per)))
+    return max(n_dev, (b // n_dev) * n_dev)
+
+
+@functools.lru_cache(maxsize=None)
+def make_batch_solver(params: Params, opts: SolverOptions, n_dev: int):
+    """jit(shard_map(vmap(solve))) over the first ``n_dev`` local devices."""
+    from jax.sharding import Mesh, PartitionSpec as P
+
+    def f(probs):
+        return jax.vmap(lambda p: solve(p, params, opts))(probs)
+
+    if n_dev <= 1:
+        return jax.jit(f)
+    mesh = Mesh(np.array(jax.devices()[:n_dev]), ("batch",))
+    # every value is per-device (no collectives), so skip the varying-axis type check
+    return jax.jit(jax.shard_map(f, mesh=mesh, in_specs=P("batch"), out_specs=P("batch"), check_vma=False))
+
+
+@dataclasses.dataclass
+class ScoreStats:
+    """Totals of one :func:`score_files` run (times in s)."""
+
+    total: int = 0
+    skipped: int = 0
+    scored: int = 0
+    errors: int = 0
+    not_converged: int = 0
+    compile_s: float = 0.0
+    solve_s: float = 0.0
+    load_s: float = 0.0
+    wall_s: float = 0.0
+    compiles: int = 0
+
+    def to_json(self) -> dict:
+        return dataclasses.asdict(self)
+
+
+class _Bar:
+    """Progress line on stderr: count, layouts/s, ETA."""
+
+    def __init__(self, total: int, enabled: bool, stream=None):
+        self.total, self.enabled = total, enabled
+        self.stream = stream or sys.stderr
+        self.k, self.t0 = 0, time.perf_counter()
+        try:
+            self.tty = self.stream.isatty()
+        except (AttributeError, ValueError):
+            self.tty = False
+        self.last = 0.0
+
+    def update(self, k: int, force: bool = False) -> None:
+        self.k += k
+        now = time.perf_counter()
+        if not self.enabled or (not force and now - self.last < (0.5 if self.tty else 10.0)):
+            return
+        self.last = now
+        el = now - self.t0
+        rate = self.k / el if el > 0 else 0.0
+        eta = (self.total - self.k) / rate if rate > 0 else float("inf")
+        w = 24
+        fill = int(w * self.k / max(self.total, 1))
+        msg = f"[{'#' * fill}{'.' * (w - fill)}] {self.k}/{self.total} {rate:.1f} layouts/s eta {eta:.0f}s"
+        self.stream.write(("\r\033[K" + msg) if self.tty else msg + "\n")
+        self.stream.flush()
+
+    def close(self) -> None:
+        if self.enabled:
+            self.update(0, force=True)
+            if self.tty:
+                self.stream.write("\n")
+                self.stream.flush()
+
+
+def _error_record(path: str, exc: Exception) -> dict:
+    text = str(exc) if isinstance(exc, (LayoutError, OSError)) else f"{type(exc).__name__}: {exc}"
+    return {"file": path, "error": text if path in text else f"{path}: {text}"}
+
+
+def _write_score_grid(path: str, layout, scores) -> None:
+    """stability_score.npy beside a dataset object (grid shape of its vox.npy)."""
+    from generators.dataset import score_grid
+
+    shape = None
+    vox = os.path.join(path, "vox.npy")
+    if os.path.exists(vox):
+        shape = np.load(vox, mmap_mode="r").shape
+    grid = score_grid(layout, [scores[k] for k in layout.keys], shape)
+    atomic_write(os.path.join(path, "stability_score.npy"), lambda fh: np.save(fh, grid), binary=True)
+
+
+def score_files(
+    inputs: Sequence[str],
+    out: str,
+    solver: str = "jax",
+    batch: int = 64,
+    devices: str | int = "all",
+    write_scores: bool = False,
+    library=None,
+    params: Params = Params(),
+    opts: SolverOptions = SolverOptions(),
+    chunk: int = 2048,
+    progress: bool = True,
+    stream=None,
+) -> ScoreStats:
+    """Score every layout of ``inputs`` into the JSON-lines file ``out``.
+
+    solver: "jax" (batched) or "exact" (HiGHS, one layout at a time);
+    batch: most layouts per solver call; devices: "all" or a count of local
+    devices to shard each batch over; chunk: layouts read and grouped at a
+    time (bounds host memory). Returns run totals; files already in ``out``
+    are skipped.
+    """
+    if solver not in ("jax", "exact"):
+        raise ValueError(f"unknown solver {solver!r} (expected 'jax' or 'exact')")
+    t_run = time.perf_counter()
+    n_dev = jax.local_device_count() if devices in ("all", None) else int(devices)
+    if not 1 <= n_dev <= jax.local_device_count():
+        raise ValueError(f"--devices {devices}: this machine has {jax.local_device_count()} local device(s)")
+    paths = find_layouts(inputs)
+    done = read_results(out)
+    todo = [p for p in paths if p not in done]
+    st = ScoreStats(total=len(paths), skipped=len(paths) - len(todo))
+    bar = _Bar(len(todo), progress, stream)
+    d = os.path.dirname(os.path.abspath(out))
+    os.makedirs(d, exist_ok=True)
+    compiled: dict = {}
+    with open(out, "a", encoding="utf-8") as fh:
+
+        def emit(recs: Iterable[dict]) -> None:
+            lines = "".join(json.dumps(r) + "\n" for r in recs)
+            fh.write(lines)
+            fh.flush()
+            os.fsync(fh.fileno())
+
+        for c0 in range(0, len(todo), chunk):
+            part = todo[c0: c0 + chunk]
+            t0 = time.perf_counter()
+            loaded, errs = [], []
+            for p in part:
+                try:
+                    lay = load_layout(p, library)
+                    model = compile_layout(lay, params)
+                    loaded.append((p, lay, model))
+                except Exception as exc:  # a bad layout is reported, the run goes on
+                    errs.append(_error_record(p, exc))
+            st.load_s += time.perf_counter() - t0
+            if errs:
+                emit(errs)
+                st.errors += len(errs)
+                bar.update(len(errs))
+            if solver == "exact":
+                for p, lay, model in loaded:
+                    t1 = time.perf_counter()
+                    r = solve_exact(model)
+                    a = _finish(lay, model, r.f, "exact", r.success, t1, objective=r.objective)
+                    st.solve_s += a.time_s
+                    rec = a.to_json()
+                    rec["file"] = p
+                    if write_scores and os.path.isdir(p):
+                        _write_score_grid(p, lay, a.scores)
+                    emit([rec])
+                    st.scored += 1
+                    st.not_converged += not a.converged
+                    bar.update(1)
+                continue
+            # group by the bricks bucket only; columns and contact slots are padded
+            # to the group's largest, so a run compiles one solver per bricks bucket
+            groups: dict = {}
+            for item in loaded:
+                groups.setdefault(bucket_size(item[2].n), []).append(item)
+            for n_pad in list(groups):
+                items = groups.pop(n_pad)
+                m_pad = bucket_size(max(it[2].m for it in items), base=64)
+                p_pad = bucket_size(max(it[2].group.shape[1] for it in items), base=4)
+                groups[(n_pad, m_pad, p_pad)] = [(it, it[2].pad(n_pad, m_pad, p_pad)) for it in items]
+            for key in sorted(groups):
+                members = groups[key]
+                bsz = batch_sizes(key[0], batch, n_dev)
+                for b0 in range(0, len(members), bsz):
+                    sub = members[b0: b0 + bsz]
+                    # pad the batch to a power of two (times n_dev) so few batch shapes compile
+                    size = n_dev
+                    while size < len(sub):
+                        size *= 2
+                    size = min(size, max(bsz, n_dev))
+                    probs = [to_problem(pm) for _, pm in sub]
+                    probs += [probs[-1]] * (size - len(probs))
+                    stacked = stack_problems(probs)
+                    ck = (key, size)
+                    if ck not in compiled:
+                        t1 = time.perf_counter()
+                        fn = make_batch_solver(params, opts, n_dev)
+                        compiled[ck] = fn.lower(stacked).compile()
+                        st.compile_s += time.perf_counter() - t1
+                        st.compiles += 1
+                    t1 = time.perf_counter()
+                    sol = jax.device_get(compiled[ck](stacked))
+                    dt = time.perf_counter() - t1
+                    st.solve_s += dt
+                    recs = []
+                    for i, ((p, lay, model), pm) in enumerate(sub):
+                        a = _finish(lay, pm, np.asarray(sol.f[i]), "jax", bool(sol.converged[i]), time.perf_counter())
+                        a.time_s = dt / len(sub)  # amortised share of the batch
+                        rec = a.to_json()
+                        rec["file"] = p
+                        rec["iters"] = int(sol.iters[i])
+                        if write_scores and os.path.isdir(p):
+                            _write_score_grid(p, lay, a.scores)
+                        recs.append(rec)
+                        st.not_converged += not a.converged
+                    emit(recs)
+                    st.scored += len(recs)
+                    bar.update(len(recs))
+    bar.close()
+    st.wall_s = time.perf_counter() - t_run
+    return st

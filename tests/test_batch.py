@@ -1,0 +1,154 @@
+"""Batched scoring: discovery, results file, resume, errors, score grids, sharding."""
+import json
+import os
+import shutil
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+from conftest import EXAMPLES
+
+from generators.dataset import write_object
+from generators.procedural import stairs, tower
+from stablelego_jax.api import analyze
+from stablelego_jax.batch import batch_sizes, find_layouts, read_results, score_files
+from stablelego_jax.cli import main
+
+REF = os.path.join(EXAMPLES, "stablelego")
+SMALL = ["external_weight_good.json", "external_weight_fail.json", "stick_light.json"]
+REQUIRED = {"file", "stable", "weakest", "scores", "n_bricks", "solver", "converged", "time_s"}
+
+
+@pytest.fixture
+def shard(tmp_path):
+    """A folder of layout files plus a dataset folder with two objects."""
+    d = tmp_path / "layouts"
+    d.mkdir()
+    for name in SMALL:
+        shutil.copy(os.path.join(REF, name), d / name)
+    shutil.copy(os.path.join(EXAMPLES, "labels_stablelego.json"), d / "labels.json")  # not a layout: skipped
+    ds = tmp_path / "dataset"
+    write_object(str(ds / "obj_a"), stairs(3), vis=False)
+    write_object(str(ds / "obj_b"), tower(3), vis=False)
+    return tmp_path
+
+
+def _lines(path):
+    with open(path) as fh:
+        return [json.loads(line) for line in fh]
+
+
+def test_find_layouts_expands_folders_and_dataset_objects(shard):
+    found = find_layouts([str(shard / "layouts"), str(shard / "dataset")])
+    names = [os.path.basename(p) for p in found]
+    assert sorted(names[:3]) == sorted(SMALL)
+    assert names[3:] == ["obj_a", "obj_b"]
+    assert "labels.json" not in names
+
+
+def test_scores_match_single_analysis_and_exact(shard, tmp_path):
+    out = tmp_path / "r.jsonl"
+    st = score_files([str(shard / "layouts"), str(shard / "dataset")], str(out), progress=False)
+    assert (st.scored, st.errors, st.not_converged) == (5, 0, 0)
+    recs = {r["file"]: r for r in _lines(out)}
+    assert len(recs) == 5
+    for path, r in recs.items():
+        assert REQUIRED <= set(r)
+        ex = analyze(path, solver="exact")
+        assert r["stable"] == ex.stable, path
+        assert r["weakest"] == ex.weakest, path
+        assert set(r["scores"]) == set(ex.scores)
+        assert max(r["scores"].values()) == pytest.approx(max(ex.scores.values()), abs=0.02)
+
+
+def test_resume_skips_done_and_drops_torn_line(shard, tmp_path):
+    out = tmp_path / "r.jsonl"
+    inputs = [str(shard / "layouts")]
+    score_files(inputs, str(out), progress=False)
+    first = _lines(out)
+    assert score_files(inputs, str(out), progress=False).scored == 0
+    # simulate a kill in the middle of writing the last line
+    text = out.read_text().splitlines(keepends=True)
+    out.write_text("".join(text[:-1]) + text[-1][: len(text[-1]) // 2])
+    assert len(read_results(str(out))) == 2
+    st = score_files(inputs, str(out), progress=False)
+    assert st.scored == 1 and st.skipped == 2
+    again = _lines(out)
+    assert sorted(r["file"] for r in again) == sorted(r["file"] for r in first)
+
+
+def test_bad_layout_gets_error_line_and_run_continues(shard, tmp_path, capsys):
+    bad = shard / "layouts" / "broken.json"
+    bad.write_text("{not json")
+    out = tmp_path / "r.jsonl"
+    rc = main(["score", str(shard / "layouts"), "--out", str(out), "--quiet"])
+    assert rc == 1
+    recs = _lines(out)
+    errs = [r for r in recs if "error" in r]
+    assert len(errs) == 1 and errs[0]["file"] == str(bad) and "broken.json" in errs[0]["error"]
+    assert sum("stable" in r for r in recs) == 3
+
+
+def test_write_scores_beside_dataset_objects(shard, tmp_path):
+    obj = shard / "dataset" / "obj_a"
+    os.remove(obj / "stability_score.npy")
+    out = tmp_path / "r.jsonl"
+    score_files([str(shard / "dataset")], str(out), write_scores=True, progress=False)
+    grid = np.load(obj / "stability_score.npy")
+    vox = np.load(obj / "vox.npy")
+    assert grid.shape == vox.shape
+    assert ((grid > 0) <= vox).all()
+    rec = {r["file"]: r for r in _lines(out)}[str(obj)]
+    assert grid.max() == pytest.approx(max(rec["scores"].values()))
+
+
+def test_exact_solver_path(shard, tmp_path):
+    out = tmp_path / "r.jsonl"
+    st = score_files([str(shard / "layouts")], str(out), solver="exact", progress=False)
+    assert st.scored == 3
+    assert all(r["solver"] == "exact" for r in _lines(out))
+
+
+def test_batch_sizes_respect_memory_and_devices():
+    assert batch_sizes(8, 64, 1) == 64
+    assert batch_sizes(1024, 64, 1) < 64
+    assert batch_sizes(8, 64, 4) % 4 == 0
+    assert batch_sizes(4096, 64, 2) == 2
+
+
+def test_sharded_over_four_cpu_devices_matches(shard, tmp_path):
+    """--devices 4 on forced host devices gives the same labels and scores."""
+    out1, out4 = tmp_path / "one.jsonl", tmp_path / "four.jsonl"
+    inputs = [str(shard / "layouts")]
+    score_files(inputs, str(out1), devices=1, progress=False)
+    env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=4", JAX_PLATFORMS="cpu")
+    root = os.path.join(os.path.dirname(__file__), "..")
+    code = (
+        "import sys; sys.path.insert(0, %r); import jax; assert jax.local_device_count() == 4;"
+        "from stablelego_jax.cli import main; sys.exit(main(sys.argv[1:]))" % root
+    )
+    r = subprocess.run(
+        [sys.executable, "-c", code, "score", *inputs, "--out", str(out4), "--devices", "4", "--batch", "4", "--quiet"],
+        env=env, capture_output=True, text=True, timeout=600,
+    )
+    assert r.returncode == 0, r.stderr
+    a = {x["file"]: x for x in _lines(out1)}
+    b = {x["file"]: x for x in _lines(out4)}
+    assert set(a) == set(b)
+    for k in a:
+        assert a[k]["stable"] == b[k]["stable"]
+        for key, v in a[k]["scores"].items():
+            assert b[k]["scores"][key] == pytest.approx(v, abs=1e-3)
+
+
+def test_missing_input_is_an_error_line(tmp_path):
+    out = tmp_path / "r.jsonl"
+    st = score_files([str(tmp_path / "nope.json")], str(out), progress=False)
+    assert st.errors == 1
+    assert "nope.json" in _lines(out)[0]["error"]
+
+
+def test_bad_device_count_is_refused(tmp_path):
+    with pytest.raises(ValueError, match="local device"):
+        score_files([os.path.join(REF, SMALL[0])], str(tmp_path / "r.jsonl"), devices=99, progress=False)
