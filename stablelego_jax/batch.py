@@ -199,11 +199,13 @@ def score_files(
     opts: SolverOptions = SolverOptions(),
     chunk: int = 2048,
     progress: bool = True,
+    exact_method: str = "highs",
     stream=None,
 ) -> ScoreStats:
     """Score every layout of ``inputs`` into the JSON-lines file ``out``.
 
-    solver: "jax" (batched) or "exact" (HiGHS, one layout at a time);
+    solver: "jax" (batched) or "exact" (HiGHS ``exact_method``, one layout
+    at a time);
     batch: most layouts per solver call; devices: "all" or a count of local
     devices to shard each batch over; chunk: layouts read and grouped at a
     time (bounds host memory). Returns run totals; files already in ``out``
@@ -250,7 +252,7 @@ def score_files(
             if solver == "exact":
                 for p, lay, model in loaded:
                     t1 = time.perf_counter()
-                    r = solve_exact(model)
+                    r = solve_exact(model, method=exact_method)
                     a = _finish(lay, model, r.f, "exact", r.success, t1, objective=r.objective)
                     st.solve_s += a.time_s
                     rec = a.to_json()

@@ -184,6 +184,7 @@ def cmd_score(args) -> int:
         st = score_files(
             args.inputs, args.out, solver=args.solver, batch=args.batch, devices=args.devices,
             write_scores=args.write_scores, library=args.library, progress=not args.quiet,
+            exact_method=args.exact_method,
         )
     except (ValueError, OSError) as exc:
         print(f"error: {exc}", file=sys.stderr)
@@ -198,6 +199,8 @@ def cmd_score(args) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from .exact import EXACT_METHODS
+
     p = argparse.ArgumentParser(prog="stablelego", description="Stability analysis of Lego brick layouts.")
     sub = p.add_subparsers(dest="cmd", required=True)
     a = sub.add_parser("analyze", help="analyse layout files (StableLego JSON, text, dataset folders)")
@@ -219,6 +222,8 @@ def build_parser() -> argparse.ArgumentParser:
     sc.add_argument("inputs", nargs="+", metavar="INPUT")
     sc.add_argument("--out", required=True, metavar="RESULTS", help="JSON-lines results file (appended)")
     sc.add_argument("--solver", choices=["jax", "exact"], default="jax")
+    sc.add_argument("--exact-method", choices=list(EXACT_METHODS), default="highs",
+                    help="HiGHS method of --solver exact (default highs: HiGHS chooses)")
     sc.add_argument("--batch", type=int, default=64, help="most layouts per solver call (default 64)")
     sc.add_argument("--devices", default="all", help="'all' or the number of local devices to shard over")
     sc.add_argument("--write-scores", action="store_true",
