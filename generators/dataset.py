@@ -242,7 +242,7 @@ def write_object(
     if scores is None:
         from stablelego_jax.api import analyze_layout
 
-        analysis = analyze_layout(layout, solver=solver, exact_method="highs-ipm")
+        analysis = analyze_layout(layout, solver=solver, exact_method="highs-ipm", exact_scale=True)
         scores = analysis.scores
     grid = score_grid(layout, scores, vox.shape)
     per_brick = dict(zip(layout.keys, [float(grid[tuple(p)]) for p in layout.pos.tolist()]))

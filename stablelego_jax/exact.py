@@ -44,23 +44,28 @@ def equilibrium_matrix(model: ForceModel) -> sp.csr_matrix:
 EXACT_METHODS = ("highs", "highs-ds", "highs-ipm")
 
 
-def solve_exact(model: ForceModel, method: str = "highs") -> ExactResult:
+def solve_exact(model: ForceModel, method: str = "highs", scale: bool = False) -> ExactResult:
     """Solve the Eq. 9 LP exactly with HiGHS ``method`` ("highs": HiGHS
     chooses, in practice dual simplex; "highs-ds"; "highs-ipm": interior
     point with crossover, much faster on layouts of hundreds of bricks).
 
-    When ``method`` returns no solution (HiGHS' simplex sometimes stops with
-    "Status 0: Not Set" on large layouts), the LP is solved again with
-    "highs-ipm"; ``status`` then says so. Both return an optimal vertex; on a
-    degenerate LP they may be different optimal vertices.
+    ``scale``: write the torque rows in N stud instead of N m (the same LP,
+    better conditioned: in N m they are ~100x smaller than the force rows,
+    near HiGHS' tolerances, and on layouts of hundreds of bricks HiGHS then
+    stops with "Status 0: Not Set" or stalls).
+
+    When the first solve returns no solution, the LP is solved again scaled
+    with "highs-ipm"; ``status`` then says so. Every answer is an optimal
+    vertex; on a degenerate LP different settings may return different
+    optimal vertices (same objective, different per-brick scores).
     """
     if method not in EXACT_METHODS:
         raise ValueError(f"method must be one of {EXACT_METHODS}, got {method!r}")
-    res = _solve_lp(model, method)
-    if res.status != 0 and method != "highs-ipm":
+    res = _solve_lp(model, method, scale)
+    if res.status != 0 and (method, scale) != ("highs-ipm", True):
         first = res.message
-        res = _solve_lp(model, "highs-ipm")
-        res.message = f"{res.message} (highs-ipm after {method}: {first})"
+        res = _solve_lp(model, "highs-ipm", True)
+        res.message = f"{res.message} (scaled highs-ipm after {method}: {first})"
     f = np.zeros(model.m_pad)
     if res.x is not None:
         f[:model.m] = res.x[:model.m]
@@ -68,15 +73,19 @@ def solve_exact(model: ForceModel, method: str = "highs") -> ExactResult:
                        status=res.message, success=bool(res.status == 0))
 
 
-def _solve_lp(model: ForceModel, method: str):
+def _solve_lp(model: ForceModel, method: str, scale: bool):
     p = model.params
     m, n = model.m, model.n
     kind = model.col_kind[:m]
-    A = equilibrium_matrix(model)
+    # scale: torque rows in N stud instead of N m (row i times rs_i and its
+    # residual cost divided by rs_i: the same LP, better conditioned)
+    ts = 1.0 / p.stud if scale else 1.0
+    rs = np.tile(np.array([1.0, 1.0, 1.0, ts, ts, ts]), n)
+    A = sp.diags(rs) @ equilibrium_matrix(model)
     normal = np.nonzero(kind == NORMAL)[0]
     k = len(normal)
     owner = model.col_brick[normal, 0]
-    g = model.gravity[:n].reshape(-1)
+    g = model.gravity[:n].reshape(-1) * rs
     I6 = sp.identity(6 * n, format="csr")
     # equality: A f - r+ + r- = -g
     A_eq = sp.hstack([A, sp.csr_matrix((6 * n, k)), -I6, I6, sp.csr_matrix((6 * n, n))]).tocsr()
@@ -93,7 +102,7 @@ def _solve_lp(model: ForceModel, method: str):
         ]
     ).tocsr()
     b_ub = np.zeros(2 * k)
-    c = np.concatenate([np.zeros(m), np.full(k, p.beta), np.ones(12 * n), np.full(n, p.alpha)])
+    c = np.concatenate([np.zeros(m), np.full(k, p.beta), np.tile(1.0 / rs, 2), np.full(n, p.alpha)])
     lo = np.where(kind == SIDE, 0.0, -np.inf)
     bounds = np.concatenate(
         [np.stack([lo, np.full(m, np.inf)], 1), np.tile([0.0, np.inf], (k + 12 * n + n, 1))]

@@ -46,12 +46,13 @@ def test_floating_brick_gets_an_answer():
 @pytest.mark.parametrize("name", REF)
 def test_interior_point_method_same_outcome(name):
     a = analyze(os.path.join(EXAMPLES, "stablelego", name), solver="exact")
-    b = analyze_layout(a.layout, solver="exact", exact_method="highs-ipm")
-    assert b.converged
-    assert b.stable == a.stable
-    assert b.objective == pytest.approx(a.objective, rel=1e-6, abs=1e-12)
-    if not a.stable:
-        assert b.weakest == a.weakest
+    for method, scale in (("highs-ipm", False), ("highs", True), ("highs-ipm", True)):
+        b = analyze_layout(a.layout, solver="exact", exact_method=method, exact_scale=scale)
+        assert b.converged
+        assert b.stable == a.stable
+        assert b.objective == pytest.approx(a.objective, rel=1e-6, abs=1e-12)
+        if not a.stable:
+            assert b.weakest == a.weakest
 
 
 def test_exact_falls_back_to_interior_point(monkeypatch):
@@ -66,13 +67,15 @@ def test_exact_falls_back_to_interior_point(monkeypatch):
 
     def flaky(*args, method, **kw):
         calls.append(method)
-        if method != "highs-ipm":  # what HiGHS' simplex does on some big layouts
+        if method != "highs-ipm":  # what HiGHS' simplex did on some big, unscaled layouts
             return scipy.optimize.OptimizeResult(x=None, fun=None, status=4, message="(HiGHS Status 0: Not Set)")
         return scipy.optimize.linprog(*args, method=method, **kw)
 
     monkeypatch.setattr(exact, "linprog", flaky)
     r = exact.solve_exact(model)
     assert calls == ["highs", "highs-ipm"]
-    assert r.success and "highs-ipm after highs" in r.status
+    assert r.success and "scaled highs-ipm after highs" in r.status
+    ref = exact.solve_exact(model, method="highs-ipm", scale=True)
+    assert r.objective == pytest.approx(ref.objective)
     with pytest.raises(ValueError):
         exact.solve_exact(model, method="simplex")
