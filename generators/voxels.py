@@ -114,6 +114,7 @@ def merge_voxels(
     seed: int = 0,
     bricks: Sequence[tuple[int, int]] = DEFAULT_BRICKS,
     source: str = "<voxels>",
+    repair: bool = True,
 ) -> Layout:
     """Cover the occupied cells of ``vox`` (X, Y, Z) bool exactly with bricks.
 
@@ -126,6 +127,12 @@ def merge_voxels(
     (even layers: long axis along x, odd: along y), then windows that span a
     joint of the layer below, then scan order. Windows with no support at all
     come last. ``seed`` only flips the scan direction per layer (tie-break).
+    With ``repair`` (default) a second pass re-merges the same-layer
+    neighbourhood of every brick the greedy pass left floating (no chain of
+    knob connections to the ground) so that it reaches a cell held by a
+    grounded brick, when that lowers the number of floating bricks. Bricks
+    that remain floating have no such cell within reach (e.g. a one-layer
+    lid over a wide cavity).
     Returns a Layout with keys "1".."n", Table I masses and library ids.
     """
     vox = np.asarray(vox).astype(bool)
@@ -212,7 +219,144 @@ def merge_voxels(
                     key[x0:px + sx, y0:py + sy] = -1
         if free.any():  # cannot happen with (1, 1) in bricks
             raise AssertionError("merge_voxels left cells uncovered")
+    if repair:
+        out_pos, out_size = _repair_floating(vox, ids, out_pos, out_size, types)
     return _bricks_to_layout(out_pos, out_size, source)
+
+
+# --------------------------------------------------------------------------
+# repair: re-merge around bricks that the greedy pass left floating
+
+
+def _floating(ids: np.ndarray, n: int) -> np.ndarray:
+    """(n,) bool: bricks with no chain of knob connections to layer 0.
+    ``ids``: (X, Y, Z) brick index per cell, -1 empty."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    lo, hi = ids[:, :, :-1], ids[:, :, 1:]
+    m = (lo >= 0) & (hi >= 0) & (lo != hi)
+    ground = n  # an extra node for the baseplate
+    base = np.unique(ids[:, :, 0][ids[:, :, 0] >= 0])
+    a = np.concatenate([lo[m], base])
+    b = np.concatenate([hi[m], np.full(len(base), ground)])
+    g = coo_matrix((np.ones(len(a)), (a, b)), shape=(n + 1, n + 1))
+    _, lab = connected_components(g, directed=False)
+    return lab[:n] != lab[ground]
+
+
+def _cover_region(region: np.ndarray, must: np.ndarray, anchor: np.ndarray, types) -> list | None:
+    """Bricks (x, y, sx, sy) covering the cells of the 2-D ``region`` exactly.
+
+    First, while a cell of ``must`` is uncovered, the window (any type and
+    orientation, inside the free region) that covers the most ``must`` cells
+    and at least one ``anchor`` cell (largest first on ties); then the rest
+    largest first. None if some ``must`` cell cannot be anchored."""
+    free = region.copy()
+    X, Y = free.shape
+    out = []
+
+    def windows():
+        for a, b in types:
+            for sx, sy in ((a, b), (b, a)) if a != b else ((a, b),):
+                if sx > X or sy > Y:
+                    continue
+                ok = _wsum(free, sx, sy) == sx * sy
+                yield sx, sy, ok
+
+    while (must & free).any():
+        best = None
+        for sx, sy, ok in windows():
+            n_must = _wsum(must & free, sx, sy)
+            n_anc = _wsum(anchor & free, sx, sy)
+            key = np.where(ok & (n_must > 0) & (n_anc > 0), n_must * 1000 + sx * sy, -1)
+            i = int(np.argmax(key))
+            if key.flat[i] > 0 and (best is None or key.flat[i] > best[0]):
+                best = (int(key.flat[i]), *np.unravel_index(i, key.shape), sx, sy)
+        if best is None:
+            return None
+        _, x, y, sx, sy = best
+        free[x:x + sx, y:y + sy] = False
+        out.append((int(x), int(y), sx, sy))
+    for sx, sy, _ in list(windows()):
+        while True:
+            ok = _wsum(free, sx, sy) == sx * sy
+            if not ok.any():
+                break
+            x, y = (int(v) for v in np.unravel_index(int(np.argmax(ok)), ok.shape))
+            free[x:x + sx, y:y + sy] = False
+            out.append((x, y, sx, sy))
+    return out if not free.any() else None
+
+
+def _repair_floating(vox, ids, pos, size, types, max_rounds: int = 4):
+    """Re-merge the neighbourhood of every floating brick so that it reaches
+    a cell held by a grounded brick (the cell under or over it belongs to
+    one). The floating brick and its same-layer neighbours are re-covered
+    (:func:`_cover_region`); a change is kept only if the number of
+    floating bricks drops. Deterministic."""
+    pos, size = list(pos), list(size)
+    ids = ids.copy()
+    X, Y, Z = vox.shape
+    cross = np.array([[0, 1, 0], [1, 1, 1], [0, 1, 0]], bool)
+
+    def n_floating(grid, alive):
+        return int((_floating(grid, len(alive)) & alive).sum())
+
+    for _ in range(max_rounds):
+        alive = np.array([p is not None for p in pos])
+        fl = _floating(ids, len(pos)) & alive
+        if not fl.any():
+            break
+        improved = False
+        for i in np.nonzero(fl)[0].tolist():
+            if pos[i] is None:
+                continue
+            alive = np.array([p is not None for p in pos])
+            cur = _floating(ids, len(pos)) & alive
+            if not cur[i]:
+                continue  # an earlier repair of this round anchored it already
+            z = pos[i][2]
+            layer = ids[:, :, z]
+            grow = ndimage.binary_dilation(layer == i, structure=cross)
+            group = sorted(set(layer[grow & (layer >= 0)].tolist()))
+            if len(group) < 2:
+                continue  # nothing beside it to merge with
+            region = np.isin(layer, group)
+            held = np.zeros((X, Y), bool)
+            if z == 0:
+                held[:] = True
+            for dz in (-1, 1):
+                if 0 <= z + dz < Z:
+                    nb = ids[:, :, z + dz]
+                    held |= (nb >= 0) & ~cur[np.maximum(nb, 0)]
+            must = region & np.isin(layer, [g for g in group if cur[g]])
+            plan = _cover_region(region, must, region & held, types)
+            if plan is None:
+                continue
+            slots = list(group) + list(range(len(pos), len(pos) + max(len(plan) - len(group), 0)))
+            trial = ids.copy()
+            tl = trial[:, :, z]
+            tl[region] = -1
+            t_alive = np.concatenate([alive, np.ones(len(slots) - len(group), bool)])
+            for k in group[len(plan):]:
+                t_alive[k] = False
+            for (bx, by, sx, sy), k in zip(plan, slots):
+                tl[bx:bx + sx, by:by + sy] = k
+            if n_floating(trial, t_alive) >= int(cur.sum()):
+                continue
+            pos.extend([None] * (len(slots) - len(group)))
+            size.extend([None] * (len(slots) - len(group)))
+            for k in group:
+                pos[k] = size[k] = None
+            for (bx, by, sx, sy), k in zip(plan, slots):
+                pos[k], size[k] = (bx, by, z), (sx, sy)
+            ids = trial
+            improved = True
+        if not improved:
+            break
+    keep = sorted((k for k in range(len(pos)) if pos[k] is not None), key=lambda k: (pos[k][2], k))
+    return [pos[k] for k in keep], [size[k] for k in keep]
 
 
 def _bricks_to_layout(pos, size, source: str) -> Layout:

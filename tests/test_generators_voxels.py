@@ -156,3 +156,25 @@ def test_seed_changes_tie_breaks_only():
     assert len(shapes) > 1  # the seed is not ignored
     for lay in layouts:
         _check_merge(vox, lay)
+
+
+def test_repair_anchors_floating_bricks():
+    from generators.voxels import _floating
+
+    total_before = total_after = 0
+    for seed in (1, 3, 4, 6, 8, 9):
+        vox = random_voxel_shape(seed, grid=8, kind="blob")
+        greedy = merge_voxels(vox, seed=seed, repair=False)
+        fixed = merge_voxels(vox, seed=seed)
+        _check_merge(vox, fixed)
+        before = int(_floating(greedy.occupancy(), greedy.n).sum())
+        after = int(_floating(fixed.occupancy(), fixed.n).sum())
+        assert after <= before
+        total_before += before
+        total_after += after
+        assert (np.diff(fixed.pos[:, 2]) >= 0).all()  # still bottom layer first
+    assert total_before >= 10 and total_after <= total_before // 3
+    # nothing to repair: the same layout as the greedy pass
+    box = np.ones((6, 5, 4), bool)
+    a, b = merge_voxels(box, repair=False), merge_voxels(box)
+    assert np.array_equal(a.pos, b.pos) and np.array_equal(a.size, b.size)
