@@ -26,7 +26,7 @@ def _meshes(tmp_path):
     return str(a), str(b), str(c)
 
 
-def test_generate_shard_then_analyze_it(tmp_path, capsys):
+def test_generate_shard_then_score_it(tmp_path, capsys):
     a, b, c = _meshes(tmp_path)
     bad = tmp_path / "meshes" / "broken.stl"
     bad.write_bytes(b"\x00garbage")
@@ -44,12 +44,14 @@ def test_generate_shard_then_analyze_it(tmp_path, capsys):
     assert obj.meta["up"] == "y" and obj.meta["seed"] == 3
     assert np.nonzero(obj.vox.any(axis=(0, 1)))[0].max() == 5  # y-up: the tall side stands up
     assert not os.path.exists(out / "vis.png") and "vis.png" not in os.listdir(out / "tall")
-    # the shard goes straight into batch analysis
-    rc = cli.main(["analyze", *sorted(str(p) for p in out.iterdir()), "--solver", "exact", "--json"])
-    o, e = capsys.readouterr()
+    # the shard goes straight into batch scoring
+    results = tmp_path / "scores.jsonl"
+    rc = cli.main(["score", str(out), "--out", str(results), "--solver", "exact", "--quiet"])
+    capsys.readouterr()
     assert rc == 0
-    recs = [json.loads(ln) for ln in o.splitlines()]
+    recs = [json.loads(ln) for ln in results.read_text().splitlines()]
     assert len(recs) == 3 and all(r["stable"] for r in recs)
+    assert {os.path.basename(os.path.normpath(r["file"])) for r in recs} == {"block", "block-2", "tall"}
     # and a dataset object exports to LDraw under its folder's name
     ldr = tmp_path / "tall.ldr"
     assert cli.main(["export", str(out / "tall"), "--ldr", str(ldr)]) == 0
