@@ -44,8 +44,9 @@ def load_layout(path: str, library: Library | str | None = None) -> Layout:
     """Read a layout file or dataset object folder, detecting the format.
 
     Args:
-      path: ``.json`` StableLego layout, ``.txt`` text layout, or a folder
-        holding ``task_graph.json``.
+      path: ``.json`` StableLego layout, ``.txt`` text layout, ``.ldr``
+        LDraw file of basic bricks (:mod:`stablelego_jax.ldraw`), or a
+        folder holding ``task_graph.json``.
       library: a Library, a library JSON path, or None for the default.
     """
     lib = _as_library(library)
