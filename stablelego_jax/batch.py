@@ -205,7 +205,8 @@ def score_files(
     """Score every layout of ``inputs`` into the JSON-lines file ``out``.
 
     solver: "jax" (batched) or "exact" (HiGHS ``exact_method``, one layout
-    at a time);
+    at a time; ``exact_scale``: torque rows in N stud, the same LP, which
+    HiGHS solves reliably on layouts of hundreds of bricks);
     batch: most layouts per solver call; devices: "all" or a count of local
     devices to shard each batch over; chunk: layouts read and grouped at a
     time (bounds host memory). Returns run totals; files already in ``out``
@@ -252,7 +253,7 @@ def score_files(
             if solver == "exact":
                 for p, lay, model in loaded:
                     t1 = time.perf_counter()
-                    r = solve_exact(model, method=exact_method)
+                    r = solve_exact(model, method=exact_method, scale=exact_scale)
                     a = _finish(lay, model, r.f, "exact", r.success, t1, objective=r.objective)
                     st.solve_s += a.time_s
                     rec = a.to_json()
