@@ -200,6 +200,7 @@ def score_files(
     chunk: int = 2048,
     progress: bool = True,
     exact_method: str = "highs",
+    exact_scale: bool = True,
     stream=None,
 ) -> ScoreStats:
     """Score every layout of ``inputs`` into the JSON-lines file ``out``.
