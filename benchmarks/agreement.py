@@ -35,7 +35,7 @@ SETTINGS = repr(SolverOptions())
 
 def run_one(seed: int) -> dict:
     fam, lay = random_family_layout(seed)
-    # torque rows in N stud: the same LP; unscaled HiGHS stalls on some 250-brick layouts
+    # torque rows in N stud (the default): the same LP; unscaled HiGHS stalls on some 250-brick layouts
     ex = analyze_layout(lay, solver="exact", exact_scale=True)
     jx = analyze_layout(lay, solver="jax")
     se = np.array([ex.scores[k] for k in lay.keys])

@@ -105,7 +105,7 @@ def analyze_layout(
     params: Params = Params(),
     opts: SolverOptions = SolverOptions(),
     exact_method: str = "highs",
-    exact_scale: bool = False,
+    exact_scale: bool = True,
 ) -> Analysis:
     """Analyse an in-memory layout with ``solver`` in {"jax", "exact"}.
 

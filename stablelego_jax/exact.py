@@ -44,12 +44,12 @@ def equilibrium_matrix(model: ForceModel) -> sp.csr_matrix:
 EXACT_METHODS = ("highs", "highs-ds", "highs-ipm")
 
 
-def solve_exact(model: ForceModel, method: str = "highs", scale: bool = False) -> ExactResult:
+def solve_exact(model: ForceModel, method: str = "highs", scale: bool = True) -> ExactResult:
     """Solve the Eq. 9 LP exactly with HiGHS ``method`` ("highs": HiGHS
     chooses, in practice dual simplex; "highs-ds"; "highs-ipm": interior
     point with crossover, much faster on layouts of hundreds of bricks).
 
-    ``scale``: write the torque rows in N stud instead of N m (the same LP,
+    ``scale`` (default on): write the torque rows in N stud instead of N m (the same LP,
     better conditioned: in N m they are ~100x smaller than the force rows,
     near HiGHS' tolerances, and on layouts of hundreds of bricks HiGHS then
     stops with "Status 0: Not Set" or stalls).

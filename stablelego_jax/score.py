@@ -5,17 +5,32 @@ for batches.
 """
 from __future__ import annotations
 
+import jax
 import jax.numpy as jnp
+import numpy as np
 
 from .model import NORMAL
 
+
 __all__ = ["residual", "brick_drag", "brick_scores"]
+
+
+def _xp(*arrays):
+    """numpy for host arrays (no per-shape jit compiles), jax.numpy otherwise
+    (jax arrays and tracers, so the functions still jit and vmap)."""
+    return jnp if any(isinstance(a, jax.Array) for a in arrays) else np
 
 
 def residual(model, f):
     """Equilibrium residual ``A f + g`` per brick: (n_pad, 6) in N and N m."""
     cb, coef = model.col_brick, model.col_coef
     n_pad = model.gravity.shape[0]
+    xp = _xp(f, coef)
+    if xp is np:
+        out = np.zeros((n_pad + 1, 6), np.result_type(f, coef))
+        np.add.at(out, cb[:, 0], coef[:, 0, :] * f[:, None])
+        np.add.at(out, cb[:, 1], coef[:, 1, :] * f[:, None])
+        return out[:n_pad] + model.gravity
     out = jnp.zeros((n_pad + 1, 6), f.dtype)
     out = out.at[cb[:, 0]].add(coef[:, 0, :] * f[:, None])
     out = out.at[cb[:, 1]].add(coef[:, 1, :] * f[:, None])
@@ -24,8 +39,9 @@ def residual(model, f):
 
 def brick_drag(model, f):
     """Largest drag ``D = max(-n, 0)`` on each brick's bottom contacts: (n_pad,) N."""
-    d = jnp.where(model.col_kind == NORMAL, jnp.maximum(-f, 0.0), 0.0)
-    d = jnp.concatenate([d, jnp.zeros((1,), d.dtype)])
+    xp = _xp(f)
+    d = xp.where(model.col_kind == NORMAL, xp.maximum(-f, 0.0), 0.0)
+    d = xp.concatenate([d, xp.zeros((1,), d.dtype)])
     return d[model.group].max(axis=1)
 
 
@@ -37,8 +53,9 @@ def brick_scores(model, f, params=None):
     largest drag / T. Padding bricks score 0.
     """
     p = params or model.params
-    r = jnp.abs(residual(model, f))
+    xp = _xp(f)
+    r = xp.abs(residual(model, f))
     bad = (r[:, :3].max(axis=1) > p.eq_tol) | (r[:, 3:].max(axis=1) > p.eq_tol * p.stud)
     dmax = brick_drag(model, f)
-    s = jnp.where(bad | (dmax >= p.T), 1.0, dmax / p.T)
-    return jnp.where(model.brick_mask, s, 0.0), bad & model.brick_mask, dmax
+    s = xp.where(bad | (dmax >= p.T), 1.0, dmax / p.T)
+    return xp.where(model.brick_mask, s, 0.0), bad & model.brick_mask, dmax
