@@ -201,6 +201,7 @@ def score_files(
     progress: bool = True,
     exact_method: str = "highs",
     exact_scale: bool = True,
+    first_cap: int = 1000,
     stream=None,
 ) -> ScoreStats:
     """Score every layout of ``inputs`` into the JSON-lines file ``out``.
@@ -209,7 +210,9 @@ def score_files(
     at a time; ``exact_scale``: torque rows in N stud, the same LP, which
     HiGHS solves reliably on layouts of hundreds of bricks);
     batch: most layouts per solver call; devices: "all" or a count of local
-    devices to shard each batch over; chunk: layouts read and grouped at a
+    devices to shard each batch over; first_cap: iteration cap of a first
+    pass, after which only uncertified layouts are solved again with the
+    full budget (0: one pass); chunk: layouts read and grouped at a
     time (bounds host memory). Returns run totals; files already in ``out``
     are skipped.
     """
@@ -234,6 +237,28 @@ def score_files(
             fh.write(lines)
             fh.flush()
             os.fsync(fh.fileno())
+
+        def _solve_batch(sub, key, o):
+            """Solve one padded batch with options ``o``; returns (solution, seconds)."""
+            # pad the batch to a power of two (times n_dev) so few batch shapes compile
+            size = n_dev
+            while size < len(sub):
+                size *= 2
+            size = min(size, max(batch_sizes(key[0], batch, n_dev), n_dev))
+            probs = [to_problem(pm) for _, pm in sub]
+            probs += [probs[-1]] * (size - len(probs))
+            stacked = stack_problems(probs)
+            ck = (key, size, o)
+            if ck not in compiled:
+                t1 = time.perf_counter()
+                compiled[ck] = make_batch_solver(params, o, n_dev).lower(stacked).compile()
+                st.compile_s += time.perf_counter() - t1
+                st.compiles += 1
+            t1 = time.perf_counter()
+            sol = jax.device_get(compiled[ck](stacked))
+            dt = time.perf_counter() - t1
+            st.solve_s += dt
+            return sol, dt
 
         for c0 in range(0, len(todo), chunk):
             part = todo[c0: c0 + chunk]
@@ -277,43 +302,41 @@ def score_files(
                 p_pad = bucket_size(max(it[2].group.shape[1] for it in items), base=4)
                 groups[(n_pad, m_pad, p_pad)] = [(it, it[2].pad(n_pad, m_pad, p_pad)) for it in items]
             for key in sorted(groups):
-                members = groups[key]
                 bsz = batch_sizes(key[0], batch, n_dev)
-                for b0 in range(0, len(members), bsz):
-                    sub = members[b0: b0 + bsz]
-                    # pad the batch to a power of two (times n_dev) so few batch shapes compile
-                    size = n_dev
-                    while size < len(sub):
-                        size *= 2
-                    size = min(size, max(bsz, n_dev))
-                    probs = [to_problem(pm) for _, pm in sub]
-                    probs += [probs[-1]] * (size - len(probs))
-                    stacked = stack_problems(probs)
-                    ck = (key, size)
-                    if ck not in compiled:
-                        t1 = time.perf_counter()
-                        fn = make_batch_solver(params, opts, n_dev)
-                        compiled[ck] = fn.lower(stacked).compile()
-                        st.compile_s += time.perf_counter() - t1
-                        st.compiles += 1
-                    t1 = time.perf_counter()
-                    sol = jax.device_get(compiled[ck](stacked))
-                    dt = time.perf_counter() - t1
-                    st.solve_s += dt
-                    recs = []
-                    for i, ((p, lay, model), pm) in enumerate(sub):
-                        a = _finish(lay, pm, np.asarray(sol.f[i]), "jax", bool(sol.converged[i]), time.perf_counter())
-                        a.time_s = dt / len(sub)  # amortised share of the batch
-                        rec = a.to_json()
-                        rec["file"] = p
-                        rec["iters"] = int(sol.iters[i])
-                        if write_scores and os.path.isdir(p):
-                            _write_score_grid(p, lay, a.scores)
-                        recs.append(rec)
-                        st.not_converged += not a.converged
-                    emit(recs)
-                    st.scored += len(recs)
-                    bar.update(len(recs))
+                # pass 1 with an iteration cap; only layouts it leaves uncertified are
+                # solved again (from scratch, full budget), so one slow layout does
+                # not hold a whole batch for its full iteration count
+                passes = [opts]
+                if 0 < first_cap < opts.max_iter:
+                    passes = [dataclasses.replace(opts, max_iter=first_cap), opts]
+                pending, spent = groups[key], {}
+                for k, o in enumerate(passes):
+                    last = k == len(passes) - 1
+                    retry = []
+                    for b0 in range(0, len(pending), bsz):
+                        sub = pending[b0: b0 + bsz]
+                        sol, dt = _solve_batch(sub, key, o)
+                        recs = []
+                        for i, ((p, lay, model), pm) in enumerate(sub):
+                            spent[p] = spent.get(p, (0.0, 0))
+                            spent[p] = (spent[p][0] + dt / len(sub), spent[p][1] + int(sol.iters[i]))
+                            if not last and not bool(sol.converged[i]):
+                                retry.append(sub[i])
+                                continue
+                            a = _finish(lay, pm, np.asarray(sol.f[i]), "jax", bool(sol.converged[i]), time.perf_counter())
+                            a.time_s = spent[p][0]  # amortised share of its batch(es)
+                            rec = a.to_json()
+                            rec["file"] = p
+                            rec["iters"] = spent[p][1]
+                            if write_scores and os.path.isdir(p):
+                                _write_score_grid(p, lay, a.scores)
+                            recs.append(rec)
+                            st.not_converged += not a.converged
+                        if recs:
+                            emit(recs)
+                            st.scored += len(recs)
+                            bar.update(len(recs))
+                    pending = retry
     bar.close()
     st.wall_s = time.perf_counter() - t_run
     return st

@@ -152,3 +152,16 @@ def test_missing_input_is_an_error_line(tmp_path):
 def test_bad_device_count_is_refused(tmp_path):
     with pytest.raises(ValueError, match="local device"):
         score_files([os.path.join(REF, SMALL[0])], str(tmp_path / "r.jsonl"), devices=99, progress=False)
+
+
+def test_capped_first_pass_then_retry_of_uncertified(tmp_path):
+    """With a 100-iteration first pass, layouts that need more are solved again."""
+    out = tmp_path / "r.jsonl"
+    paths = [os.path.join(REF, n) for n in SMALL]
+    st = score_files(paths, str(out), first_cap=100, progress=False)
+    assert (st.scored, st.not_converged) == (3, 0)
+    recs = {r["file"]: r for r in _lines(out)}
+    assert recs[paths[2]]["iters"] > 100  # stick_light needs several hundred iterations
+    for p in paths:
+        ex = analyze(p, solver="exact")
+        assert recs[p]["stable"] == ex.stable and recs[p]["weakest"] == ex.weakest
