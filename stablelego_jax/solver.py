@@ -314,7 +314,6 @@ def solve(prob: Problem, params: Params = Params(), opts: SolverOptions = Solver
                 w_new = tw
             return (w_new, tw, prev, k + 1)
 
-        w_last = c["state"]
         w, tw, prev, k = jax.lax.fori_loop(
             0, opts.check_every - 1, inner, (c["state"], c["state"], (zeros_r, zeros_m), c["k"])
         )
@@ -332,10 +331,12 @@ def solve(prob: Problem, params: Params = Params(), opts: SolverOptions = Solver
                 | ((res <= opts.restart_necessary * r0) & (res > c["res_prev"]))
                 | (k >= opts.restart_artificial * it)
             )
-            w = jax.tree_util.tree_map(lambda a, b: jnp.where(restart, a, b), tw, w)
+            def on_restart(old):
+                return jax.tree_util.tree_map(lambda a, b: jnp.where(restart, a, b), tw, old)
+
             out.update(
-                state=w,
-                anchor=jax.tree_util.tree_map(lambda a, b: jnp.where(restart, a, b), tw, anchor),
+                state=on_restart(w),
+                anchor=on_restart(anchor),
                 k=jnp.where(restart, 0.0, k),
                 res_restart=jnp.where(restart, res, r0),
             )
@@ -353,7 +354,8 @@ def solve(prob: Problem, params: Params = Params(), opts: SolverOptions = Solver
             def refac(_):
                 ch, pd, rx = factor(new_rho)
                 # a new metric: restart from the ADMM image
-                return (new_rho, ch, pd, rx, rescale(tw, rho, new_rho), rescale(tw, rho, new_rho))
+                w0 = rescale(tw, rho, new_rho)
+                return (new_rho, ch, pd, rx, w0, w0)
 
             def keep(_):
                 return (rho, chol, pdiag, rho_x, out["state"], out["anchor"])
@@ -364,7 +366,6 @@ def solve(prob: Problem, params: Params = Params(), opts: SolverOptions = Solver
             out["res_restart"] = jnp.where(change, big, out["res_restart"])
         return out
 
-    big = jnp.asarray(jnp.inf, dtype)
     carry = dict(
         state=state0, it=jnp.asarray(0), done=jnp.asarray(False), rho=rho0, chol=chol0, pdiag=pd0,
         rho_x=rx0, pr=big, dr=big, obj=big, dual=-big, gap=big,
