@@ -10,14 +10,14 @@ import numpy as np
 
 from .exact import solve_exact
 from .io import load_layout
-from .layout import Layout, Library
+from .layout import Layout, LayoutError, Library
 from .model import ForceModel, Params, bucket_size, compile_layout
 from .score import brick_scores, residual
 from .solver import SolverOptions, solve, to_problem
 
 jax.config.update("jax_enable_x64", True)
 
-__all__ = ["Analysis", "analyze", "analyze_layout", "pad_to_bucket", "solve_jax"]
+__all__ = ["Analysis", "analyze", "analyze_layout", "error_message", "pad_to_bucket", "solve_jax"]
 
 
 @dataclasses.dataclass
@@ -58,6 +58,13 @@ class Analysis:
             "converged": self.converged,
             "time_s": round(self.time_s, 6),
         }
+
+
+def error_message(path: str, exc: Exception) -> str:
+    """One-line message for an input that failed, naming ``path`` once
+    (layout and file errors as they are, anything else with its type)."""
+    text = str(exc) if isinstance(exc, (LayoutError, OSError)) else f"{type(exc).__name__}: {exc}"
+    return text if path in text else f"{path}: {text}"
 
 
 def pad_to_bucket(model: ForceModel) -> ForceModel:

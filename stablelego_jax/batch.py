@@ -20,18 +20,17 @@ import dataclasses
 import functools
 import json
 import os
-import sys
 import time
 from typing import Iterable, Sequence
 
 import jax
 import numpy as np
 
-from .api import _finish
+from .api import _finish, error_message
 from .exact import solve_exact
 from .io import atomic_write, atomic_write_text, load_layout
-from .layout import LayoutError
 from .model import Params, bucket_size, compile_layout
+from .progress import Progress
 from .solver import SolverOptions, solve, stack_problems, to_problem
 
 __all__ = ["find_layouts", "read_results", "ScoreStats", "score_files", "make_batch_solver", "batch_sizes"]
@@ -134,47 +133,6 @@ class ScoreStats:
         return dataclasses.asdict(self)
 
 
-class _Bar:
-    """Progress line on stderr: count, layouts/s, ETA."""
-
-    def __init__(self, total: int, enabled: bool, stream=None):
-        self.total, self.enabled = total, enabled
-        self.stream = stream or sys.stderr
-        self.k, self.t0 = 0, time.perf_counter()
-        try:
-            self.tty = self.stream.isatty()
-        except (AttributeError, ValueError):
-            self.tty = False
-        self.last = 0.0
-
-    def update(self, k: int, force: bool = False) -> None:
-        self.k += k
-        now = time.perf_counter()
-        if not self.enabled or (not force and now - self.last < (0.5 if self.tty else 10.0)):
-            return
-        self.last = now
-        el = now - self.t0
-        rate = self.k / el if el > 0 else 0.0
-        eta = (self.total - self.k) / rate if rate > 0 else float("inf")
-        w = 24
-        fill = int(w * self.k / max(self.total, 1))
-        msg = f"[{'#' * fill}{'.' * (w - fill)}] {self.k}/{self.total} {rate:.1f} layouts/s eta {eta:.0f}s"
-        self.stream.write(("\r\033[K" + msg) if self.tty else msg + "\n")
-        self.stream.flush()
-
-    def close(self) -> None:
-        if self.enabled:
-            self.update(0, force=True)
-            if self.tty:
-                self.stream.write("\n")
-                self.stream.flush()
-
-
-def _error_record(path: str, exc: Exception) -> dict:
-    text = str(exc) if isinstance(exc, (LayoutError, OSError)) else f"{type(exc).__name__}: {exc}"
-    return {"file": path, "error": text if path in text else f"{path}: {text}"}
-
-
 def _write_score_grid(path: str, layout, scores) -> None:
     """stability_score.npy beside a dataset object (grid shape of its vox.npy)."""
     from generators.dataset import score_grid
@@ -226,7 +184,7 @@ def score_files(
     done = read_results(out)
     todo = [p for p in paths if p not in done]
     st = ScoreStats(total=len(paths), skipped=len(paths) - len(todo))
-    bar = _Bar(len(todo), progress, stream)
+    bar = Progress(len(todo), stream=stream, enabled=progress, unit="layouts")
     d = os.path.dirname(os.path.abspath(out))
     os.makedirs(d, exist_ok=True)
     compiled: dict = {}
@@ -237,6 +195,13 @@ def score_files(
             fh.write(lines)
             fh.flush()
             os.fsync(fh.fileno())
+
+        def record(p, lay, a, **extra) -> dict:
+            """The results line of one analysed layout (and its score grid)."""
+            if write_scores and os.path.isdir(p):
+                _write_score_grid(p, lay, a.scores)
+            st.not_converged += not a.converged
+            return dict(a.to_json(), file=p, **extra)
 
         def _solve_batch(sub, key, o):
             """Solve one padded batch with options ``o``; returns (solution, seconds)."""
@@ -270,26 +235,21 @@ def score_files(
                     model = compile_layout(lay, params)
                     loaded.append((p, lay, model))
                 except Exception as exc:  # a bad layout is reported, the run goes on
-                    errs.append(_error_record(p, exc))
+                    errs.append({"file": p, "error": error_message(p, exc)})
             st.load_s += time.perf_counter() - t0
             if errs:
                 emit(errs)
                 st.errors += len(errs)
-                bar.update(len(errs))
+                bar.advance(len(errs))
             if solver == "exact":
                 for p, lay, model in loaded:
                     t1 = time.perf_counter()
                     r = solve_exact(model, method=exact_method, scale=exact_scale)
                     a = _finish(lay, model, r.f, "exact", r.success, t1, objective=r.objective)
                     st.solve_s += a.time_s
-                    rec = a.to_json()
-                    rec["file"] = p
-                    if write_scores and os.path.isdir(p):
-                        _write_score_grid(p, lay, a.scores)
-                    emit([rec])
+                    emit([record(p, lay, a)])
                     st.scored += 1
-                    st.not_converged += not a.converged
-                    bar.update(1)
+                    bar.advance(1)
                 continue
             # group by the bricks bucket only; columns and contact slots are padded
             # to the group's largest, so a run compiles one solver per bricks bucket
@@ -318,24 +278,18 @@ def score_files(
                         sol, dt = _solve_batch(sub, key, o)
                         recs = []
                         for i, ((p, lay, model), pm) in enumerate(sub):
-                            spent[p] = spent.get(p, (0.0, 0))
-                            spent[p] = (spent[p][0] + dt / len(sub), spent[p][1] + int(sol.iters[i]))
+                            t_prev, it_prev = spent.get(p, (0.0, 0))
+                            spent[p] = (t_prev + dt / len(sub), it_prev + int(sol.iters[i]))
                             if not last and not bool(sol.converged[i]):
                                 retry.append(sub[i])
                                 continue
                             a = _finish(lay, pm, np.asarray(sol.f[i]), "jax", bool(sol.converged[i]), time.perf_counter())
                             a.time_s = spent[p][0]  # amortised share of its batch(es)
-                            rec = a.to_json()
-                            rec["file"] = p
-                            rec["iters"] = spent[p][1]
-                            if write_scores and os.path.isdir(p):
-                                _write_score_grid(p, lay, a.scores)
-                            recs.append(rec)
-                            st.not_converged += not a.converged
+                            recs.append(record(p, lay, a, iters=spent[p][1]))
                         if recs:
                             emit(recs)
                             st.scored += len(recs)
-                            bar.update(len(recs))
+                            bar.advance(len(recs))
                     pending = retry
     bar.close()
     st.wall_s = time.perf_counter() - t_run

@@ -47,8 +47,7 @@ def _summary(a) -> str:
 
 
 def cmd_analyze(args) -> int:
-    from .api import analyze
-    from .layout import LayoutError
+    from .api import analyze, error_message
 
     many = len(args.files) > 1
     failed = 0
@@ -65,8 +64,7 @@ def cmd_analyze(args) -> int:
                 render_heatmap(a.layout, scores, png)
         except Exception as exc:  # one bad file must not stop the others
             failed += 1
-            text = str(exc) if isinstance(exc, (LayoutError, OSError)) else f"{type(exc).__name__}: {exc}"
-            msg = text if path in text else f"{path}: {text}"
+            msg = error_message(path, exc)
             if args.json:
                 print(json.dumps({"file": path, "error": msg}), flush=True)
             else:

@@ -13,15 +13,18 @@ __all__ = ["Progress"]
 
 
 class Progress:
-    """``start(label)`` before an item, ``done(message)`` after it."""
+    """``start(label)`` before an item, ``done(message)`` after it; or, for
+    many small items, ``advance(k)`` (no line per item)."""
 
-    def __init__(self, total: int, stream=None, width: int = 24, enabled: bool = True):
+    def __init__(self, total: int, stream=None, width: int = 24, enabled: bool = True, unit: str = "items"):
         self.total = max(int(total), 0)
         self.stream = sys.stderr if stream is None else stream
         self.width = int(width)
         self.enabled = bool(enabled)
+        self.unit = unit
         self.count = 0
         self.t0 = time.perf_counter()
+        self._last = 0.0
         try:
             self.tty = bool(self.stream.isatty())
         except (AttributeError, ValueError):
@@ -50,6 +53,22 @@ class Progress:
             return
         prefix = "\r\033[K" if self.tty else ""
         self.stream.write(f"{prefix}{self._bar(self.count)} {message}\n")
+        self.stream.flush()
+
+    def advance(self, k: int = 1) -> None:
+        """Count ``k`` finished items; the bar with items/s and ETA is redrawn
+        in place on a terminal (at most every 0.5 s), else written as a line
+        at most every 10 s and at the end."""
+        self.count += int(k)
+        if not self.enabled:
+            return
+        now = time.perf_counter()
+        if now - self._last < (0.5 if self.tty else 10.0) and self.count < self.total:
+            return
+        self._last = now
+        el = now - self.t0
+        line = f"{self._bar(self.count)} {self.count / el if el > 0 else 0.0:.1f} {self.unit}/s{self._eta()}"
+        self.stream.write(f"\r\033[K{line}" if self.tty else line + "\n")
         self.stream.flush()
 
     def close(self) -> None:
