@@ -29,33 +29,13 @@ sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
 
 from generators.dataset import write_object  # noqa: E402
 from generators.mesh import MESH_SUFFIXES, MeshError, voxelize  # noqa: E402
-from generators.voxels import merge_voxels  # noqa: E402
+from generators.voxels import floating_bricks, merge_voxels  # noqa: E402
 from stablelego_jax.api import analyze_layout  # noqa: E402
 from stablelego_jax.render import contact_sheet  # noqa: E402
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 RESULTS = os.path.join(HERE, "results")
 Y_UP = {"bunny.ply", "chair_model.obj", "rabbit.obj", "target.obj", "tube.obj", "wallhole.obj"}
-
-
-def floating_bricks(layout) -> int:
-    """Bricks with no chain of knob connections down to the baseplate."""
-    occ = layout.occupancy()
-    n = layout.n
-    lo, hi = occ[:, :, :-1], occ[:, :, 1:]
-    m = (lo >= 0) & (hi >= 0) & (lo != hi)
-    adj = [set() for _ in range(n)]
-    for a, b in zip(lo[m].tolist(), hi[m].tolist()):
-        adj[a].add(b)
-        adj[b].add(a)
-    seen = set(np.nonzero(layout.pos[:, 2] == 0)[0].tolist())
-    todo = list(seen)
-    while todo:
-        for j in adj[todo.pop()]:
-            if j not in seen:
-                seen.add(j)
-                todo.append(j)
-    return n - len(seen)
 
 
 def main(argv=None):
@@ -95,7 +75,7 @@ def main(argv=None):
             "up": v.up, "watertight": v.watertight, "fill": v.fill, "faces": v.n_faces,
             "voxels": int(v.vox.sum()), "bricks": lay.n,
             "stable": a.stable, "n_failing": int((s >= 1).sum()), "n_torn": int(torn.sum()),
-            "n_unbalanced": int(((s >= 1) & ~torn).sum()), "floating": floating_bricks(lay),
+            "n_unbalanced": int(((s >= 1) & ~torn).sum()), "floating": int(floating_bricks(lay).sum()),
             "weakest": a.weakest, "weakest_score": float(s[w]),
             "weakest_brick": f"{lay.size[w, 0]}x{lay.size[w, 1]} at ({lay.pos[w, 0]},{lay.pos[w, 1]},{lay.pos[w, 2]})",
             "solver": a.solver, "converged": a.converged,

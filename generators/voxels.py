@@ -24,6 +24,7 @@ __all__ = [
     "random_blob",
     "random_voxel_shape",
     "ground",
+    "floating_bricks",
 ]
 
 # (short, long) footprints, largest first (2-wide before 1-wide on equal area).
@@ -243,6 +244,12 @@ def _floating(ids: np.ndarray, n: int) -> np.ndarray:
     g = coo_matrix((np.ones(len(a)), (a, b)), shape=(n + 1, n + 1))
     _, lab = connected_components(g, directed=False)
     return lab[:n] != lab[ground]
+
+
+def floating_bricks(layout: Layout) -> np.ndarray:
+    """(n,) bool: bricks of ``layout`` with no chain of knob connections
+    down to the baseplate (they cannot be balanced)."""
+    return _floating(layout.occupancy(), layout.n)
 
 
 def _cover_region(region: np.ndarray, must: np.ndarray, anchor: np.ndarray, types) -> list | None:

@@ -18,6 +18,7 @@ from generators.procedural import (
     wall,
     with_floating,
 )
+from generators.voxels import floating_bricks
 from stablelego_jax.io import layout_to_json_dict, parse_json_layout
 from stablelego_jax.layout import TABLE_I_MASS_KG
 
@@ -43,22 +44,7 @@ def _valid(layout):
 
 def _grounded(layout):
     """Per brick: connected to the baseplate through knob connections."""
-    occ = layout.occupancy()
-    n = layout.n
-    adj = [set() for _ in range(n)]
-    lo, hi = occ[:, :, :-1], occ[:, :, 1:]
-    m = (lo >= 0) & (hi >= 0) & (lo != hi)
-    for a, b in zip(lo[m].tolist(), hi[m].tolist()):
-        adj[a].add(b)
-        adj[b].add(a)
-    seen = set(np.nonzero(layout.pos[:, 2] == 0)[0].tolist())
-    todo = list(seen)
-    while todo:
-        for j in adj[todo.pop()]:
-            if j not in seen:
-                seen.add(j)
-                todo.append(j)
-    return np.array([i in seen for i in range(n)])
+    return ~floating_bricks(layout)
 
 
 def _ref_cells(name):
