@@ -11,7 +11,7 @@ HERE = os.path.dirname(__file__)
 EXAMPLES = os.path.join(HERE, "..", "examples")
 STABLELEGO = os.path.join(EXAMPLES, "stablelego")
 BRICKGPT = os.path.join(EXAMPLES, "brickgpt")
-SHARED_REF = os.path.join(HERE, "..", "..", "shared", "reference", "stablelego")
+from conftest import SHARED_REF  # noqa: E402
 
 STAIR_19 = os.path.join(STABLELEGO, "stair_19.json")
 STAIR_20 = os.path.join(STABLELEGO, "stair_20.json")

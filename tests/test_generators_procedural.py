@@ -22,7 +22,7 @@ from generators.voxels import floating_bricks
 from stablelego_jax.io import layout_to_json_dict, parse_json_layout
 from stablelego_jax.layout import TABLE_I_MASS_KG
 
-REF = os.path.join(os.path.dirname(__file__), "..", "..", "shared", "reference", "stablelego")
+from conftest import SHARED_REF as REF  # noqa: E402
 
 
 def _valid(layout):

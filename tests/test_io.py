@@ -19,10 +19,7 @@ from stablelego_jax.io import (
 )
 from stablelego_jax.layout import TABLE_I_MASS_KG, LayoutError, Library, default_library, make_layout
 
-SHARED = os.path.join(os.path.dirname(__file__), "..", "..", "shared")
-REF = os.path.join(SHARED, "reference", "stablelego")
-BRICKGPT = os.path.join(SHARED, "reference", "brickgpt")
-needs_shared = pytest.mark.skipif(not os.path.isdir(REF), reason="shared reference folder absent")
+from conftest import SHARED_BRICKGPT as BRICKGPT, SHARED_REF as REF, needs_shared  # noqa: E402
 
 NOT_LAYOUTS = {"config.json", "labels.json", "lego_library.json"}
 

@@ -19,9 +19,7 @@ from stablelego_jax.layout import (
     make_layout,
 )
 
-SHARED = os.path.join(os.path.dirname(__file__), "..", "..", "shared")
-REF = os.path.join(SHARED, "reference", "stablelego")
-needs_shared = pytest.mark.skipif(not os.path.isdir(REF), reason="shared reference folder absent")
+from conftest import SHARED_REF as REF, needs_shared  # noqa: E402
 
 SRC = "/some/dir/layout.json"
 

@@ -9,9 +9,7 @@ from stablelego_jax.io import load_layout, parse_text_layout
 from stablelego_jax.layout import make_layout
 from stablelego_jax.render import contact_sheet, render_heatmap, render_pair
 
-SHARED = os.path.join(os.path.dirname(__file__), "..", "..", "shared")
-REF = os.path.join(SHARED, "reference", "stablelego")
-needs_shared = pytest.mark.skipif(not os.path.isdir(REF), reason="shared reference folder absent")
+from conftest import SHARED_REF as REF, needs_shared  # noqa: E402
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 
