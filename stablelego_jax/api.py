@@ -29,6 +29,10 @@ class Analysis:
     force per column (N, see model.ForceModel); max_drag: {key: N};
     residual: (n, 6) equilibrium residual (N, N m); converged/iters/gap:
     solver diagnostics (the exact solver reports HiGHS success).
+    method: "ours" (paper Eq. 9) or a baseline ("luo", "eb"; see
+    :mod:`~stablelego_jax.baselines`, where stable == solvable and an
+    unsolvable layout has no scores, weakest or forces); solvable: always
+    True for ours.
     """
 
     file: str
@@ -46,9 +50,11 @@ class Analysis:
     iters: int = 0
     gap: float = 0.0
     objective: float = float("nan")
+    method: str = "ours"
+    solvable: bool | None = True
 
     def to_json(self) -> dict:
-        return {
+        out = {
             "file": self.file,
             "stable": self.stable,
             "weakest": self.weakest,
@@ -58,6 +64,9 @@ class Analysis:
             "converged": self.converged,
             "time_s": round(self.time_s, 6),
         }
+        if self.method != "ours":  # baselines (see baselines.py): "unsolvable" is an answer
+            out.update(method=self.method, solvable=self.solvable)
+        return out
 
 
 def error_message(path: str, exc: Exception) -> str:
@@ -113,15 +122,25 @@ def analyze_layout(
     opts: SolverOptions = SolverOptions(),
     exact_method: str = "highs",
     exact_scale: bool = True,
+    method: str = "ours",
 ) -> Analysis:
     """Analyse an in-memory layout with ``solver`` in {"jax", "exact"}.
 
     ``exact_method``, ``exact_scale``: HiGHS method and row scaling of the
     exact solver (see :func:`~stablelego_jax.exact.solve_exact`;
     "highs-ipm" with scaling is the fast, robust choice for layouts of
-    hundreds of bricks)."""
+    hundreds of bricks). ``method``: "ours" (paper Eq. 9), or the baselines
+    "luo" / "eb" (exact solver only; see :mod:`~stablelego_jax.baselines`)."""
+    from .baselines import METHODS, analyze_baseline
+
+    if method not in METHODS:
+        raise ValueError(f"unknown method {method!r} (expected one of {', '.join(METHODS)})")
+    if method != "ours" and solver != "exact":
+        raise ValueError(f"method {method!r} runs on the exact solver only (solver='exact'), not {solver!r}")
     t0 = time.perf_counter()
     model = compile_layout(layout, params)
+    if method != "ours":
+        return analyze_baseline(layout, model, method, t0, exact_method=exact_method, scale=exact_scale)
     if solver == "exact":
         r = solve_exact(model, method=exact_method, scale=exact_scale)
         return _finish(layout, model, r.f, "exact", r.success, t0, objective=r.objective)
@@ -141,7 +160,9 @@ def analyze(
     library: Library | str | None = None,
     params: Params = Params(),
     opts: SolverOptions = SolverOptions(),
+    method: str = "ours",
 ) -> Analysis:
-    """Analyse a layout file / dataset folder path, or a Layout."""
+    """Analyse a layout file / dataset folder path, or a Layout (``method``:
+    see :func:`analyze_layout`)."""
     layout = source if isinstance(source, Layout) else load_layout(str(source), library)
-    return analyze_layout(layout, solver=solver, params=params, opts=opts)
+    return analyze_layout(layout, solver=solver, params=params, opts=opts, method=method)
