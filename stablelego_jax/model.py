@@ -41,7 +41,10 @@ class Params:
     stud: stud pitch (m); layer: layer height (m); g: gravity (m/s^2);
     T: friction capacity per contact point (N); alpha, beta: Eq. 9 weights;
     eq_tol: residual tolerance (N) below which a brick is in equilibrium
-    (torques are compared against ``eq_tol * stud`` N m).
+    (torques are compared against ``eq_tol * stud`` N m); drag_rtol: a
+    largest drag within ``drag_rtol * T`` of T counts as reaching T (a drag
+    exactly at capacity, as in knife-edge levers, comes out of any solver a
+    few ulps to either side of T).
     """
 
     stud: float = 0.0078
@@ -51,6 +54,7 @@ class Params:
     alpha: float = 1e-3
     beta: float = 1e-6
     eq_tol: float = 1e-4
+    drag_rtol: float = 1e-6
 
 
 @dataclasses.dataclass(frozen=True)
@@ -67,6 +71,10 @@ class ForceModel:
       where empty (for the per-brick max drag).
     gravity: (n_pad, 6) constant wrench (weight) on each brick.
     brick_mask: (n_pad,) bool real bricks.
+    layer: (n_pad,) int32 layer (z) of each brick, -1 for padding; every
+      column joins bricks of one layer (side presses) or of adjacent layers
+      (knob connections), which the interior-point solver's block-tridiagonal
+      factorisation uses. None for models built by hand.
     """
 
     n: int
@@ -79,6 +87,7 @@ class ForceModel:
     gravity: np.ndarray
     brick_mask: np.ndarray
     params: Params
+    layer: np.ndarray | None = None
 
     @property
     def n_pad(self) -> int:
@@ -116,9 +125,13 @@ class ForceModel:
         grav[: self.n_pad] = self.gravity
         bm = np.zeros(n_pad, bool)
         bm[: self.n_pad] = self.brick_mask
+        lay = None
+        if self.layer is not None:
+            lay = np.full(n_pad, -1, np.int32)
+            lay[: self.n_pad] = self.layer
         return dataclasses.replace(
             self, col_brick=cb.astype(np.int32), col_coef=coef, col_kind=kind, col_mask=mask,
-            group=grp, gravity=grav, brick_mask=bm,
+            group=grp, gravity=grav, brick_mask=bm, layer=lay,
         )
 
 
@@ -234,4 +247,5 @@ def compile_layout(layout: Layout, params: Params = Params()) -> ForceModel:
         gravity=gravity,
         brick_mask=np.ones(n, bool),
         params=params,
+        layer=np.asarray(pos[:, 2], np.int32),
     )

@@ -49,7 +49,8 @@ def brick_scores(model, f, params=None):
     """Eq. 10 score per brick (n_pad,), plus (residual_bad, max_drag).
 
     Score is 1 where the residual exceeds ``eq_tol`` (forces, N) or
-    ``eq_tol * stud`` (torques, N m), or the largest drag reaches T; else
+    ``eq_tol * stud`` (torques, N m), or the largest drag reaches T (within
+    ``drag_rtol * T``); else
     largest drag / T. Padding bricks score 0.
     """
     p = params or model.params
@@ -57,5 +58,5 @@ def brick_scores(model, f, params=None):
     r = xp.abs(residual(model, f))
     bad = (r[:, :3].max(axis=1) > p.eq_tol) | (r[:, 3:].max(axis=1) > p.eq_tol * p.stud)
     dmax = brick_drag(model, f)
-    s = xp.where(bad | (dmax >= p.T), 1.0, dmax / p.T)
+    s = xp.where(bad | (dmax >= p.T * (1.0 - p.drag_rtol)), 1.0, dmax / p.T)
     return xp.where(model.brick_mask, s, 0.0), bad & model.brick_mask, dmax

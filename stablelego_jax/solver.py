@@ -48,6 +48,7 @@ class Problem(NamedTuple):
     group: jnp.ndarray  # (n, P) int32, m = empty
     gravity: jnp.ndarray  # (n, 6)
     brick_mask: jnp.ndarray  # (n,) bool
+    layers: jnp.ndarray | None = None  # (L,): bricks numbered layer by layer (ipm only)
 
 
 def to_problem(model: ForceModel) -> Problem:
@@ -64,7 +65,7 @@ def to_problem(model: ForceModel) -> Problem:
 
 def stack_problems(problems) -> Problem:
     """Stack equally padded problems along a new leading batch axis."""
-    return Problem(*[np.stack(a) for a in zip(*problems)])
+    return Problem(*[None if a[0] is None else np.stack(a) for a in zip(*problems)])
 
 
 @dataclasses.dataclass(frozen=True)
