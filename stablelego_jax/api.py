@@ -13,6 +13,7 @@ from .io import load_layout
 from .layout import Layout, LayoutError, Library
 from .model import ForceModel, Params, bucket_size, compile_layout
 from .score import brick_scores, residual
+from . import ipm
 from .solver import SolverOptions, solve, to_problem
 
 jax.config.update("jax_enable_x64", True)
@@ -82,16 +83,34 @@ def pad_to_bucket(model: ForceModel) -> ForceModel:
 
 
 @functools.lru_cache(maxsize=None)
-def _jitted(params: Params, opts: SolverOptions):
-    return jax.jit(functools.partial(solve, params=params, opts=opts))
+def _jitted(params: Params, opts):
+    fn = solve if isinstance(opts, SolverOptions) else ipm.solve
+    return jax.jit(functools.partial(fn, params=params, opts=opts))
 
 
-def solve_jax(model: ForceModel, opts: SolverOptions = SolverOptions()):
-    """Solve one model with the jit-compiled ADMM (padded to its bucket)."""
-    padded = pad_to_bucket(model)
-    sol = _jitted(model.params, opts)(to_problem(padded))
-    sol = jax.device_get(sol)
-    return sol, padded
+def solve_jax(model: ForceModel, opts=None):
+    """Solve one model with a jit-compiled JAX solver, padded to its bucket.
+
+    opts: :class:`~stablelego_jax.ipm.IPMOptions` or None (interior point,
+    dense or layer-by-layer as :func:`~stablelego_jax.batch.solve_plan`
+    chooses) or :class:`~stablelego_jax.solver.SolverOptions` (ADMM).
+    Returns (Solution, model the forces belong to: padded, bricks in input
+    order)."""
+    if isinstance(opts, SolverOptions):
+        padded = pad_to_bucket(model)
+        return jax.device_get(_jitted(model.params, opts)(to_problem(padded))), padded
+    from .batch import solve_plan
+
+    opts = opts or ipm.IPMOptions()
+    key = solve_plan(model)
+    m_pad, p_pad = bucket_size(model.m, base=64), bucket_size(model.group.shape[1], base=4)
+    if key[0] == "layered":
+        padded = model.pad(model.n, m_pad, p_pad)
+        prob = ipm.layered_problem(ipm.to_layered(padded, key[1], key[2]), key[1])
+    else:
+        padded = model.pad(key[1], m_pad, p_pad)
+        prob = ipm.layered_problem(padded, 1)
+    return jax.device_get(_jitted(model.params, opts)(prob)), padded
 
 
 def _finish(layout, model, f, solver, converged, t0, **diag) -> Analysis:
@@ -119,12 +138,17 @@ def analyze_layout(
     layout: Layout,
     solver: str = "jax",
     params: Params = Params(),
-    opts: SolverOptions = SolverOptions(),
+    opts=None,
     exact_method: str = "highs",
     exact_scale: bool = True,
     method: str = "ours",
 ) -> Analysis:
-    """Analyse an in-memory layout with ``solver`` in {"jax", "exact"}.
+    """Analyse an in-memory layout with ``solver`` in {"jax", "admm", "exact"}.
+
+    "jax": the batched-ready interior-point solver (:mod:`~stablelego_jax.ipm`;
+    ``opts`` an IPMOptions, or a SolverOptions to run ADMM instead);
+    "admm": the first-order solver (:mod:`~stablelego_jax.solver`);
+    "exact": HiGHS.
 
     ``exact_method``, ``exact_scale``: HiGHS method and row scaling of the
     exact solver (see :func:`~stablelego_jax.exact.solve_exact`;
@@ -144,12 +168,14 @@ def analyze_layout(
     if solver == "exact":
         r = solve_exact(model, method=exact_method, scale=exact_scale)
         return _finish(layout, model, r.f, "exact", r.success, t0, objective=r.objective)
-    if solver != "jax":
-        raise ValueError(f"unknown solver {solver!r} (expected 'jax' or 'exact')")
+    if solver not in ("jax", "admm"):
+        raise ValueError(f"unknown solver {solver!r} (expected 'jax', 'admm' or 'exact')")
+    if solver == "admm" and not isinstance(opts, SolverOptions):
+        opts = SolverOptions()
     sol, padded = solve_jax(model, opts)
     f = np.asarray(sol.f)
     return _finish(
-        layout, padded, f, "jax", bool(sol.converged), t0,
+        layout, padded, f, solver, bool(sol.converged), t0,
         iters=int(sol.iters), gap=float(sol.gap), objective=float(sol.objective),
     )
 
@@ -159,7 +185,7 @@ def analyze(
     solver: str = "jax",
     library: Library | str | None = None,
     params: Params = Params(),
-    opts: SolverOptions = SolverOptions(),
+    opts=None,
     method: str = "ours",
 ) -> Analysis:
     """Analyse a layout file / dataset folder path, or a Layout (``method``:

@@ -1,10 +1,12 @@
 """Batched scoring of many layouts: size buckets, ``vmap``, device sharding,
 resumable JSON-lines results.
 
-Flow per chunk of inputs: read and compile each layout (numpy), pad it to
-its size bucket (``api.pad_to_bucket``), group equal bucket shapes, and
-solve each group in batches with one jit-compiled, ``vmap``-ed solver per
-(bucket shape, batch size), split over the local devices with
+Flow per chunk of inputs: read and compile each layout (numpy), choose its
+solver bucket (:func:`solve_plan`: a dense or a layer-by-layer shape for the
+interior-point solver), group equal buckets, pad each group to its largest
+column count, and solve each group in batches with one jit-compiled,
+``vmap``-ed solver per (bucket shape, batch size), split over the local
+devices with
 ``jax.shard_map`` (each device runs its own while-loop, so a device stops
 as soon as its own layouts have converged). Compiled solvers are cached for
 the whole run; compile time is measured apart from solve time.
@@ -31,9 +33,11 @@ from .exact import solve_exact
 from .io import atomic_write, atomic_write_text, load_layout
 from .model import Params, bucket_size, compile_layout
 from .progress import Progress
+from . import ipm
 from .solver import SolverOptions, solve, stack_problems, to_problem
 
-__all__ = ["find_layouts", "read_results", "ScoreStats", "score_files", "make_batch_solver", "batch_sizes"]
+__all__ = ["find_layouts", "read_results", "ScoreStats", "score_files", "make_batch_solver", "batch_sizes",
+           "solve_plan", "plan_bytes"]
 
 LAYOUT_EXTS = (".json", ".txt", ".ldr")
 # files that sit beside StableLego layouts but are not layouts
@@ -90,22 +94,45 @@ def read_results(out: str) -> dict:
     return done
 
 
-def batch_sizes(n_pad: int, batch: int, n_dev: int, mem_budget: float = 2e9) -> int:
-    """Largest batch for bricks bucket ``n_pad``: at most ``batch``, within
-    ``mem_budget`` bytes for the dense (6n)^2 factor of every member, and a
-    multiple of ``n_dev``."""
-    per = 3 * (6 * n_pad) ** 2 * 8  # M, its factor and a work copy, float64
-    b = int(max(1, min(batch, mem_budget * n_dev // per)))
+def solve_plan(model) -> tuple:
+    """Bucket key of the interior-point solver for ``model``: ("dense", n_pad)
+    or ("layered", L_pad, B_pad), whichever factorises more cheaply (the
+    block-tridiagonal form costs ~3 L (6 B)^3 flops, the dense one
+    (6 n)^3 / 3); layouts of up to 48 bricks stay dense (one small factor
+    beats a scan over layers)."""
+    n_b = bucket_size(model.n)
+    Lp, Bp = ipm.layer_bucket(*ipm.layer_plan(model))
+    if n_b > 48 and Lp > 1 and 3 * Lp * Bp ** 3 < n_b ** 3 / 3:
+        return ("layered", Lp, Bp)
+    return ("dense", n_b)
+
+
+def plan_bytes(key: tuple, m_pad: int) -> int:
+    """Working memory of one layout in a batch (float64 bytes): the reduced
+    matrix blocks, their factors and the per-column assembly buffers."""
+    L, B = (1, key[1]) if key[0] == "dense" else key[1:]
+    k6 = 6 * B
+    return 8 * (6 * L * k6 * k6 + 4 * L * B * k6 + 300 * m_pad)
+
+
+def batch_sizes(per_layout: int, batch: int, n_dev: int, mem_budget: float = 2e9) -> int:
+    """Largest batch: at most ``batch``, within ``mem_budget`` bytes for
+    ``per_layout`` bytes of each member, and a multiple of ``n_dev``."""
+    b = int(max(1, min(batch, mem_budget * n_dev // max(per_layout, 1))))
     return max(n_dev, (b // n_dev) * n_dev)
 
 
 @functools.lru_cache(maxsize=None)
-def make_batch_solver(params: Params, opts: SolverOptions, n_dev: int):
-    """jit(shard_map(vmap(solve))) over the first ``n_dev`` local devices."""
+def make_batch_solver(params: Params, opts, n_dev: int):
+    """jit(shard_map(vmap(solve))) over the first ``n_dev`` local devices;
+    ``opts``: :class:`~stablelego_jax.ipm.IPMOptions` (interior point) or
+    :class:`~stablelego_jax.solver.SolverOptions` (ADMM)."""
     from jax.sharding import Mesh, PartitionSpec as P
 
+    fn = ipm.solve if isinstance(opts, ipm.IPMOptions) else solve
+
     def f(probs):
-        return jax.vmap(lambda p: solve(p, params, opts))(probs)
+        return jax.vmap(lambda p: fn(p, params, opts))(probs)
 
     if n_dev <= 1:
         return jax.jit(f)
@@ -154,28 +181,37 @@ def score_files(
     write_scores: bool = False,
     library=None,
     params: Params = Params(),
-    opts: SolverOptions = SolverOptions(),
+    opts=None,
     chunk: int = 2048,
     progress: bool = True,
     exact_method: str = "highs",
     exact_scale: bool = True,
     first_cap: int = 1000,
     stream=None,
+    method: str = "ours",
 ) -> ScoreStats:
     """Score every layout of ``inputs`` into the JSON-lines file ``out``.
 
-    solver: "jax" (batched) or "exact" (HiGHS ``exact_method``, one layout
-    at a time; ``exact_scale``: torque rows in N stud, the same LP, which
-    HiGHS solves reliably on layouts of hundreds of bricks);
+    solver: "jax" (batched interior point, :mod:`~stablelego_jax.ipm`),
+    "admm" (batched first-order ADMM, :mod:`~stablelego_jax.solver`) or
+    "exact" (HiGHS ``exact_method``, one layout at a time; ``exact_scale``:
+    torque rows in N stud, the same LP, which HiGHS solves reliably on
+    layouts of hundreds of bricks); opts: options of the JAX solver
+    (IPMOptions / SolverOptions; None: defaults); method: "ours" or a
+    baseline ("luo", "eb"; exact solver only, see :mod:`~stablelego_jax.baselines`);
     batch: most layouts per solver call; devices: "all" or a count of local
-    devices to shard each batch over; first_cap: iteration cap of a first
-    pass, after which only uncertified layouts are solved again with the
-    full budget (0: one pass); chunk: layouts read and grouped at a
+    devices to shard each batch over; first_cap (ADMM only): iteration cap
+    of a first pass, after which only uncertified layouts are solved again
+    with the full budget (0: one pass); chunk: layouts read and grouped at a
     time (bounds host memory). Returns run totals; files already in ``out``
     are skipped.
     """
-    if solver not in ("jax", "exact"):
-        raise ValueError(f"unknown solver {solver!r} (expected 'jax' or 'exact')")
+    if solver not in ("jax", "admm", "exact"):
+        raise ValueError(f"unknown solver {solver!r} (expected 'jax', 'admm' or 'exact')")
+    if method != "ours" and solver != "exact":
+        raise ValueError(f"method {method!r} runs on the exact solver only")
+    if opts is None:
+        opts = ipm.IPMOptions() if solver == "jax" else SolverOptions()
     t_run = time.perf_counter()
     n_dev = jax.local_device_count() if devices in ("all", None) else int(devices)
     if not 1 <= n_dev <= jax.local_device_count():
@@ -198,20 +234,19 @@ def score_files(
 
         def record(p, lay, a, **extra) -> dict:
             """The results line of one analysed layout (and its score grid)."""
-            if write_scores and os.path.isdir(p):
+            if write_scores and os.path.isdir(p) and a.scores:
                 _write_score_grid(p, lay, a.scores)
             st.not_converged += not a.converged
             return dict(a.to_json(), file=p, **extra)
 
-        def _solve_batch(sub, key, o):
-            """Solve one padded batch with options ``o``; returns (solution, seconds)."""
+        def _solve_batch(probs, key, bsz, o):
+            """Solve one batch of problems with options ``o``; returns (solution, seconds)."""
             # pad the batch to a power of two (times n_dev) so few batch shapes compile
             size = n_dev
-            while size < len(sub):
+            while size < len(probs):
                 size *= 2
-            size = min(size, max(batch_sizes(key[0], batch, n_dev), n_dev))
-            probs = [to_problem(pm) for _, pm in sub]
-            probs += [probs[-1]] * (size - len(probs))
+            size = min(size, bsz)
+            probs = probs + [probs[-1]] * (size - len(probs))
             stacked = stack_problems(probs)
             ck = (key, size, o)
             if ck not in compiled:
@@ -244,46 +279,62 @@ def score_files(
             if solver == "exact":
                 for p, lay, model in loaded:
                     t1 = time.perf_counter()
-                    r = solve_exact(model, method=exact_method, scale=exact_scale)
-                    a = _finish(lay, model, r.f, "exact", r.success, t1, objective=r.objective)
+                    if method == "ours":
+                        r = solve_exact(model, method=exact_method, scale=exact_scale)
+                        a = _finish(lay, model, r.f, "exact", r.success, t1, objective=r.objective)
+                    else:
+                        from .baselines import analyze_baseline
+
+                        a = analyze_baseline(lay, model, method, t1, exact_method=exact_method, scale=exact_scale)
                     st.solve_s += a.time_s
                     emit([record(p, lay, a)])
                     st.scored += 1
                     bar.advance(1)
                 continue
-            # group by the bricks bucket only; columns and contact slots are padded
-            # to the group's largest, so a run compiles one solver per bricks bucket
+            # group by solver bucket (interior point: dense or layered shape; ADMM:
+            # bricks bucket); columns and contact slots are padded to the group's
+            # largest, so a run compiles one solver per bucket (and batch size)
             groups: dict = {}
             for item in loaded:
-                groups.setdefault(bucket_size(item[2].n), []).append(item)
-            for n_pad in list(groups):
-                items = groups.pop(n_pad)
+                key = solve_plan(item[2]) if solver == "jax" else ("dense", bucket_size(item[2].n))
+                groups.setdefault(key, []).append(item)
+            for key in sorted(groups):
+                items = groups[key]
                 m_pad = bucket_size(max(it[2].m for it in items), base=64)
                 p_pad = bucket_size(max(it[2].group.shape[1] for it in items), base=4)
-                groups[(n_pad, m_pad, p_pad)] = [(it, it[2].pad(n_pad, m_pad, p_pad)) for it in items]
-            for key in sorted(groups):
-                bsz = batch_sizes(key[0], batch, n_dev)
-                # pass 1 with an iteration cap; only layouts it leaves uncertified are
-                # solved again (from scratch, full budget), so one slow layout does
+                prepared = []
+                for it in items:
+                    if key[0] == "layered":
+                        fm = it[2].pad(it[2].n, m_pad, p_pad)  # scores are computed on this one
+                        prob = ipm.layered_problem(ipm.to_layered(fm, key[1], key[2]), key[1])
+                    else:
+                        fm = it[2].pad(key[1], m_pad, p_pad)
+                        prob = ipm.layered_problem(fm, 1) if solver == "jax" else to_problem(fm)
+                    prepared.append((it, fm, prob))
+                gkey = key + (m_pad, p_pad)
+                bsz = batch_sizes(plan_bytes(key, m_pad), batch, n_dev)
+                # ADMM: pass 1 with an iteration cap; only layouts it leaves uncertified
+                # are solved again (from scratch, full budget), so one slow layout does
                 # not hold a whole batch for its full iteration count
                 passes = [opts]
-                if 0 < first_cap < opts.max_iter:
+                if solver == "admm" and 0 < first_cap < opts.max_iter:
                     passes = [dataclasses.replace(opts, max_iter=first_cap), opts]
-                pending, spent = groups[key], {}
+                pending, spent = prepared, {}
                 for k, o in enumerate(passes):
                     last = k == len(passes) - 1
                     retry = []
                     for b0 in range(0, len(pending), bsz):
                         sub = pending[b0: b0 + bsz]
-                        sol, dt = _solve_batch(sub, key, o)
+                        sol, dt = _solve_batch([pr for _, _, pr in sub], gkey, bsz, o)
                         recs = []
-                        for i, ((p, lay, model), pm) in enumerate(sub):
+                        for i, ((p, lay, model), fm, _) in enumerate(sub):
                             t_prev, it_prev = spent.get(p, (0.0, 0))
                             spent[p] = (t_prev + dt / len(sub), it_prev + int(sol.iters[i]))
                             if not last and not bool(sol.converged[i]):
                                 retry.append(sub[i])
                                 continue
-                            a = _finish(lay, pm, np.asarray(sol.f[i]), "jax", bool(sol.converged[i]), time.perf_counter())
+                            a = _finish(lay, fm, np.asarray(sol.f[i]), solver, bool(sol.converged[i]),
+                                        time.perf_counter())
                             a.time_s = spent[p][0]  # amortised share of its batch(es)
                             recs.append(record(p, lay, a, iters=spent[p][1]))
                         if recs:

@@ -244,8 +244,9 @@ def build_parser() -> argparse.ArgumentParser:
     a = sub.add_parser("analyze", help="analyse layout files (StableLego JSON, text, dataset folders)")
     a.add_argument("files", nargs="+", metavar="FILE")
     a.add_argument("--library", help="brick library JSON (default: the StableLego library)")
-    a.add_argument("--solver", choices=["jax", "exact"], default=None,
-                   help="jax (default for --method ours) or exact (HiGHS; the only one for luo and eb)")
+    a.add_argument("--solver", choices=["jax", "admm", "exact"], default=None,
+                   help="jax (interior point in JAX, default for --method ours), admm (first-order JAX solver) "
+                        "or exact (HiGHS; the only one for luo and eb)")
     a.add_argument("--method", choices=list(METHODS), default="ours",
                    help="ours (paper Eq. 9, default), luo (Luo et al. 2015) or eb (enhanced baseline): "
                         "the baselines answer solvable or not (JSON 'solvable')")
@@ -263,8 +264,9 @@ def build_parser() -> argparse.ArgumentParser:
     )
     sc.add_argument("inputs", nargs="+", metavar="INPUT")
     sc.add_argument("--out", required=True, metavar="RESULTS", help="JSON-lines results file (appended)")
-    sc.add_argument("--solver", choices=["jax", "exact"], default=None,
-                    help="jax (default for --method ours) or exact (HiGHS; the only one for luo and eb)")
+    sc.add_argument("--solver", choices=["jax", "admm", "exact"], default=None,
+                    help="jax (interior point in JAX, default for --method ours), admm (first-order JAX solver) "
+                        "or exact (HiGHS; the only one for luo and eb)")
     sc.add_argument("--method", choices=list(METHODS), default="ours",
                     help="ours (default), luo or eb (baselines, exact solver; lines get 'solvable')")
     sc.add_argument("--exact-method", choices=list(EXACT_METHODS), default="highs",

@@ -12,7 +12,7 @@ from conftest import EXAMPLES
 from generators.dataset import write_object
 from generators.procedural import stairs, tower
 from stablelego_jax.api import analyze
-from stablelego_jax.batch import batch_sizes, find_layouts, read_results, score_files
+from stablelego_jax.batch import batch_sizes, find_layouts, plan_bytes, read_results, score_files, solve_plan
 from stablelego_jax.cli import main
 
 REF = os.path.join(EXAMPLES, "stablelego")
@@ -111,10 +111,24 @@ def test_exact_solver_path(shard, tmp_path):
 
 
 def test_batch_sizes_respect_memory_and_devices():
-    assert batch_sizes(8, 64, 1) == 64
-    assert batch_sizes(1024, 64, 1) < 64
-    assert batch_sizes(8, 64, 4) % 4 == 0
-    assert batch_sizes(4096, 64, 2) == 2
+    small, big = plan_bytes(("dense", 8), 64), plan_bytes(("dense", 512), 4096)
+    assert batch_sizes(small, 64, 1) == 64
+    assert 1 <= batch_sizes(big, 64, 1) < 64
+    assert batch_sizes(big, 64, 1) * big <= 2e9
+    assert batch_sizes(small, 64, 4) % 4 == 0
+    assert batch_sizes(10 * big, 64, 2) == 2
+    # the layer-by-layer plan of a 20-layer blob needs far less than its dense form
+    assert plan_bytes(("layered", 20, 40), 8192) < plan_bytes(("dense", 800), 8192) / 10
+
+
+def test_solve_plan_picks_layers_for_big_layouts():
+    from stablelego_jax.model import compile_layout
+    from generators.procedural import tower
+
+    assert solve_plan(compile_layout(tower(3)))[0] == "dense"
+    wide = compile_layout(stairs(60))
+    key = solve_plan(wide)
+    assert key[0] == "layered" and key[1] >= 60
 
 
 def test_sharded_over_four_cpu_devices_matches(shard, tmp_path):
@@ -158,7 +172,7 @@ def test_capped_first_pass_then_retry_of_uncertified(tmp_path):
     """With a 100-iteration first pass, layouts that need more are solved again."""
     out = tmp_path / "r.jsonl"
     paths = [os.path.join(REF, n) for n in SMALL]
-    st = score_files(paths, str(out), first_cap=100, progress=False)
+    st = score_files(paths, str(out), solver="admm", first_cap=100, progress=False)
     assert (st.scored, st.not_converged) == (3, 0)
     recs = {r["file"]: r for r in _lines(out)}
     assert recs[paths[2]]["iters"] > 100  # stick_light needs several hundred iterations
