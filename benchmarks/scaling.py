@@ -4,8 +4,9 @@ Usage: python benchmarks/scaling.py [--max-k 10]
 
 * Unit-brick cubes k x k x k (k = 1..max_k, up to 1000 bricks): one layout
   at a time; exact = HiGHS (median of 3 solves, model compile included);
-  JAX = the jit-compiled solver on the padded model (one warm-up call
-  compiles it; the compile time is listed apart, then the median of 3).
+  JAX = the jit-compiled interior-point solver (``--solver jax``) on the
+  model padded to its bucket (dense or layer by layer, as ``score`` picks):
+  compiled once (listed apart), then the median of 3.
 * The realistic shard: the per-layout times of the throughput run
   (``benchmarks/throughput.py``; JAX times there are each layout's share of
   its batch).
@@ -26,9 +27,10 @@ sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
 import numpy as np  # noqa: E402
 
 from generators.procedural import cuboid  # noqa: E402
-from stablelego_jax.api import _jitted, analyze_layout, pad_to_bucket  # noqa: E402
-from stablelego_jax.model import compile_layout  # noqa: E402
-from stablelego_jax.solver import SolverOptions, to_problem  # noqa: E402
+from stablelego_jax import ipm  # noqa: E402
+from stablelego_jax.api import _jitted, analyze_layout  # noqa: E402
+from stablelego_jax.batch import solve_plan  # noqa: E402
+from stablelego_jax.model import bucket_size, compile_layout  # noqa: E402
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 RES = os.path.join(HERE, "results")
@@ -41,8 +43,13 @@ def time_cube(k: int) -> dict:
         a = analyze_layout(lay, solver="exact")
         te.append(a.time_s)
     model = compile_layout(lay)
-    prob = to_problem(pad_to_bucket(model))
-    fn = _jitted(model.params, SolverOptions())
+    key = solve_plan(model)
+    m_pad, p_pad = bucket_size(model.m, base=64), bucket_size(model.group.shape[1], base=4)
+    if key[0] == "layered":
+        prob = ipm.layered_problem(ipm.to_layered(model.pad(model.n, m_pad, p_pad), key[1], key[2]), key[1])
+    else:
+        prob = ipm.layered_problem(model.pad(key[1], m_pad, p_pad), 1)
+    fn = _jitted(model.params, ipm.IPMOptions())
     t0 = time.perf_counter()
     comp = fn.lower(prob).compile()
     tc = time.perf_counter() - t0
@@ -56,7 +63,7 @@ def time_cube(k: int) -> dict:
     return {
         "k": k, "n_bricks": lay.n, "exact_s": float(np.median(te)), "jax_s": float(np.median(tj)),
         "jax_compile_s": tc, "jax_iters": int(sol.iters), "jax_converged": bool(sol.converged),
-        "stable_exact": a.stable, "stable_jax": ja.stable,
+        "stable_exact": a.stable, "stable_jax": ja.stable, "plan": list(key),
     }
 
 

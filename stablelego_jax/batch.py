@@ -115,10 +115,18 @@ def plan_bytes(key: tuple, m_pad: int) -> int:
     return 8 * (6 * L * k6 * k6 + 4 * L * B * k6 + 300 * m_pad)
 
 
-def batch_sizes(per_layout: int, batch: int, n_dev: int, mem_budget: float = 2e9) -> int:
+def batch_sizes(per_layout: int, batch: int, n_dev: int, mem_budget: float = 2e9,
+                cache_budget: float = 64e6) -> int:
     """Largest batch: at most ``batch``, within ``mem_budget`` bytes for
-    ``per_layout`` bytes of each member, and a multiple of ``n_dev``."""
-    b = int(max(1, min(batch, mem_budget * n_dev // max(per_layout, 1))))
+    ``per_layout`` bytes of each member, and a multiple of ``n_dev``.
+
+    Members whose working set exceeds ``cache_budget`` / 2 go one per device:
+    their factorisations already keep the cores busy, and a batch would only
+    run every member for its slowest member's iteration count."""
+    cap = mem_budget * n_dev // max(per_layout, 1)
+    if per_layout > cache_budget / 2:
+        cap = min(cap, n_dev)
+    b = int(max(1, min(batch, cap)))
     return max(n_dev, (b // n_dev) * n_dev)
 
 
