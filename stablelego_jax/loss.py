@@ -1,0 +1,746 @@
+"""Differentiable stability loss of soft layouts (paper Eq. 9-10, smoothed by a barrier).
+
+The problem
+-----------
+For a :class:`~stablelego_jax.soft.SoftProblem` with existence weights ``w``
+and extra loads (kg per brick), the forces are the point of the *central
+path* of the paper's Eq. 9 linear programme at barrier parameter ``mu``:
+the minimiser of (scaled units: forces in units of the friction capacity T,
+torques in T x stud pitch)
+
+    sum_b w_b [ sum_i c_i (r+_bi + r-_bi) + alpha t_b ]       Eq. 9: |residual|, max drag
+    + sum_p w_p [ beta D_p (NORMAL) + gamma (S_p + D_p) (KNOB) ]
+    - mu * (weighted log-barrier of every inequality)
+
+subject to ``r+_b - r-_b = rho_b`` (the residual of brick b), ``t_b >= o_p
+D_p`` for the contacts p under b, and ``S, D, t, r+, r- >= 0``, where
+
+* every force column p is split as in the paper into two non-negative
+  parts, ``phi_p = S_p - D_p`` (support minus drag for contact points,
+  +/- presses for knob presses; side presses have S only), given *per unit
+  of existence*: the physical force is ``w_p phi_p`` (``w_p``: the product
+  of the weights of the units the column joins, see
+  :mod:`stablelego_jax.soft`), and ``o_p`` is the weight of the other brick
+  of the column as seen from a brick;
+* ``rho_b = sum_p o_p a_pb phi_p + g_b`` is brick b's residual per unit of
+  its existence (g_b: its weight plus its extra load), ``c = (1, 1, 1, stud,
+  stud, stud)`` (N and N m as in Eq. 9);
+* ``gamma`` (``LossOptions.knob_cost``, 1e-6 like beta) is a tiny cost on
+  knob presses that keeps each +/- pair bounded; everything else is Eq. 9.
+
+As ``mu -> 0`` the central path tends to an optimal solution of Eq. 9 (the
+analytic centre of its optimal face); at the default ``mu = 1e-7`` drags are
+within ~1e-4 N of HiGHS' on the paper's structures and residuals ~1e-7 N.
+The central-path point is unique and a smooth function of weights and loads.
+
+Multiplying each brick's terms by its weight and using forces per unit of
+existence makes ``w = 0`` exactly "absent" and keeps the first-order effect
+of adding a brick finite and physical: the faded-in brick must balance its
+own (scaled) weight through its contacts, so a candidate brick hanging in
+the air cannot help, and one standing on the baseplate can.
+
+It is solved by an infeasible primal-dual interior-point method (Mehrotra
+predictor-corrector, a fixed number of iterations in a ``while_loop``) in
+which each Newton system is reduced, per column and in closed form, to one
+dense LU factorisation of a (7 n x 7 n) system (n bricks): the residual
+rows' prices and the bricks' drag maxima. The optimality conditions are
+written per unit of existence (divided by the weights), which keeps them
+regular at ``w = 0``. ``jit`` and ``vmap`` work.
+
+Gradients
+---------
+Implicit differentiation: the solver has a custom VJP that solves one
+transposed Newton system ``J^T lam = dL/dx`` at the solution (J: the
+Jacobian of the barrier problem's optimality conditions R) and returns
+``-(dR/dtheta)^T lam`` for theta = (weights, loads). Nothing is unrolled.
+
+The loss
+--------
+Per brick (``brick_loss``), at temperature ``tau`` (units of T):
+
+    l_b = w_b [ tau softplus((t_b - 1) / tau) + E_b ]
+
+with t_b the brick's largest drag in units of T (the Eq. 9 variable) and E_b
+its equilibrium residual (sum of |force| + |torque| in T and T m). As
+``tau`` and ``mu`` go to 0, ``l_b -> max(D_b/T - 1, 0) + E_b``: positive
+exactly for the bricks Eq. 10 scores 1 (drag beyond T, or out of
+equilibrium beyond the residual tolerance), zero otherwise. ``soft_scores``
+gives the Eq. 10 scores and verdict of the smooth solution; ``fail_prob``,
+``sigmoid((t_b - 1)/tau)``, is a smooth version of Eq. 10's indicator.
+
+What the gradient means physically
+----------------------------------
+* ``d loss / d loads[b]`` (per kg): how much the total overload (drag beyond
+  the capacity T, in units of T, plus any unbalanced force) grows per
+  kilogram hung on brick b, with the forces redistributed as Eq. 9
+  redistributes them.
+* ``d loss / d weights[c]`` at ``w_c = 0`` for a candidate brick c: the
+  rate at which the overload changes when c is faded in: its own weight is
+  added, and its contacts start to carry forces (in proportion to w), chosen
+  as Eq. 9 chooses them: pushing where the other bricks' equilibrium prices
+  (the duals of their residual rows, i.e. the virtual displacements of the
+  collapse) say it relieves them, while balancing c's own weight. Negative:
+  adding c helps. For a base brick at ``w = 1``: positive means the layout
+  would get better with less of that brick.
+"""
+from __future__ import annotations
+
+import dataclasses
+import functools
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .model import KNOB, NORMAL, Params
+from .soft import SoftProblem
+
+jax.config.update("jax_enable_x64", True)
+
+__all__ = [
+    "LossOptions",
+    "SoftSolution",
+    "solve_soft",
+    "brick_loss",
+    "stability_loss",
+    "soft_scores",
+    "fail_prob",
+]
+
+
+@dataclasses.dataclass(frozen=True)
+class LossOptions:
+    """Settings of the smooth solver and the loss (hashable: a static jit argument).
+
+    temperature: loss temperature tau (units of T) of the overload hinge.
+    mu: barrier parameter at which forces are returned and differentiated
+      (the solver's own temperature; -> 0 gives Eq. 9's LP).
+    iters: most interior-point iterations (a ``while_loop``: it stops once
+      mean(s z / w) <= 1.5 mu and every s z / w is within a factor
+      ``centred`` of mu; under ``vmap`` when every problem has stopped).
+    knob_cost: gamma, the cost (per T) of knob presses.
+    compliance: eps, the compliance of the contacts of partly existing
+      bricks (their cost ``eps (1 - w) / 2 (S^2 + D^2)`` per unit of
+      existence); 0 at w = 1. It keeps the forces a faded-in brick carries
+      proportional to its weight: with Eq. 9's linear costs alone, a brick
+      of any positive weight standing on the baseplate could carry any load
+      (the loss would jump at w = 0+).
+    tol: convergence tolerance on the optimality conditions (inf-norm,
+      scaled units) for ``SoftSolution.converged``.
+    residual_smoothing: s of the smoothed |residual| in the loss (units of T).
+    params: physical parameters (T, alpha, beta, ...).
+    """
+
+    temperature: float = 0.02
+    mu: float = 1e-5
+    iters: int = 30
+    centred: float = 0.01
+    knob_cost: float = 1e-6
+    compliance: float = 1e-2
+    tol: float = 1e-5
+    residual_smoothing: float = 1e-6
+    params: Params = Params()
+
+
+class SoftSolution(NamedTuple):
+    """Solution of the smooth problem.
+
+    phi: (m,) force of each column per unit of existence, in units of T.
+    max_drag: (n,) each brick's largest-drag variable t_b, in N (per unit of existence).
+    force: (m,) physical force in N (``w_p phi_p T``).
+    converged: optimality conditions within ``tol`` and iterate centred;
+    opt_res: the optimality residual (inf-norm; 1 or more when not centred).
+    """
+
+    phi: jnp.ndarray
+    max_drag: jnp.ndarray
+    force: jnp.ndarray
+    converged: jnp.ndarray
+    opt_res: jnp.ndarray
+
+
+# --------------------------------------------------------------------------
+# the problem's arrays at given weights
+
+
+class _Ctx(NamedTuple):
+    """Weight-dependent constants of one problem (all JAX arrays)."""
+
+    coef: jnp.ndarray  # (m, 2, 6) scaled wrench per unit force
+    coef_t: jnp.ndarray  # (m, 2, 6) the same times the other-brick weight of each slot
+    cb: jnp.ndarray  # (m, 2)
+    g: jnp.ndarray  # (n, 6) scaled weight (with loads) per unit of existence
+    om: jnp.ndarray  # (n,) brick weights (0 for padding)
+    o0: jnp.ndarray  # (m,) weight of the slot-1 brick seen from slot 0 (1 within a unit)
+    wcol: jnp.ndarray  # (m,) column weight
+    real: jnp.ndarray  # (m,) bool real columns
+    pair: jnp.ndarray  # (m,) bool real columns with two parts S - D (NORMAL, KNOB)
+    normal: jnp.ndarray  # (m,) bool real NORMAL columns
+    knob: jnp.ndarray  # (m,) bool real KNOB columns
+    owner: jnp.ndarray  # (m,) brick whose bottom a NORMAL column is on (n: none)
+    group: jnp.ndarray  # (n, P)
+    cost: jnp.ndarray  # (n, 6) L1 weights of the scaled rows
+
+
+def _context(weights, loads, prob: SoftProblem, params: Params) -> _Ctx:
+    dtype = jnp.float64
+    n = prob.mass.shape[0]
+    s = 1.0 / params.stud
+    row = jnp.asarray([1.0, 1.0, 1.0, s, s, s], dtype)
+    cost = jnp.asarray([1.0, 1.0, 1.0, params.stud, params.stud, params.stud], dtype) * jnp.ones((n, 6), dtype)
+    w_eff = jnp.asarray(weights, dtype)[prob.unit]
+    om = jnp.where(prob.brick_mask, w_eff, 0.0)
+    om_ext = jnp.concatenate([om, jnp.ones((1,), dtype)])
+    unit_ext = jnp.concatenate([jnp.asarray(prob.unit, jnp.int32), jnp.full((1,), -1, jnp.int32)])
+    cb = jnp.asarray(prob.col_brick)
+    b0, b1 = cb[:, 0], cb[:, 1]
+    same = unit_ext[b0] == unit_ext[b1]
+    w0, w1 = om_ext[b0], om_ext[b1]
+    o0 = jnp.where(same, 1.0, w1)
+    o1 = jnp.where(same, 1.0, w0)
+    real = jnp.asarray(prob.col_mask)
+    coef = jnp.asarray(prob.col_coef, dtype) * row
+    coef_t = coef * jnp.stack([o0, o1], axis=1)[:, :, None]
+    load = jnp.zeros((n,), dtype) if loads is None else jnp.asarray(loads, dtype)
+    gz = -(jnp.asarray(prob.mass, dtype) + load) * params.g / params.T
+    g = jnp.zeros((n, 6), dtype).at[:, 2].set(jnp.where(prob.brick_mask, gz, 0.0))
+    kind = jnp.asarray(prob.col_kind)
+    normal = (kind == NORMAL) & real
+    knob = (kind == KNOB) & real
+    return _Ctx(coef=coef, coef_t=coef_t, cb=cb, g=g, om=om, o0=o0, wcol=jnp.where(real, w0 * o0, 0.0),
+                real=real, pair=normal | knob, normal=normal, knob=knob, owner=jnp.where(normal, b0, n),
+                group=jnp.asarray(prob.group), cost=cost)
+
+
+def _apply(coef, cb, x, n):
+    """sum over columns of coef[:, s] x -> (n, 6) (slot bricks ``n`` dropped)."""
+    out = jnp.zeros((n + 1, 6), x.dtype)
+    out = out.at[cb[:, 0]].add(coef[:, 0] * x[:, None])
+    out = out.at[cb[:, 1]].add(coef[:, 1] * x[:, None])
+    return out[:n]
+
+
+def _apply_t(coef, cb, y):
+    """transpose of :func:`_apply`: (n, 6) -> (m,)."""
+    yp = jnp.concatenate([y, jnp.zeros((1, 6), y.dtype)])
+    return (coef[:, 0] * yp[cb[:, 0]]).sum(-1) + (coef[:, 1] * yp[cb[:, 1]]).sum(-1)
+
+
+def _owner_sum(ctx: _Ctx, vals, n):
+    return jax.ops.segment_sum(vals, ctx.owner, num_segments=n + 1)[:n]
+
+
+def _ext(v):
+    return jnp.concatenate([v, jnp.zeros((1,), v.dtype)])
+
+
+def _phi(x, ctx: _Ctx):
+    S, D, _ = x
+    return jnp.where(ctx.pair, S - D, S)
+
+
+def _rho(ctx: _Ctx, phi):
+    return _apply(ctx.coef_t, ctx.cb, phi, ctx.g.shape[0]) + ctx.g
+
+
+# --------------------------------------------------------------------------
+# inequalities: kinds 0: D >= 0 (pairs), 1: S >= 0 (real columns),
+# 2: t_owner - o D >= 0 (NORMAL), 3: t >= 0 (bricks); then the residual
+# rows' pairs a: r >= 0, b: r - rho >= 0 (r = r+, r - rho = r-)
+
+
+def _masks(ctx: _Ctx):
+    n = ctx.g.shape[0]
+    ones = jnp.ones((n,), bool)
+    rows = jnp.ones((n, 6), bool)
+    return (ctx.pair, ctx.real, ctx.normal, ones, rows, rows)
+
+
+def _weights(ctx: _Ctx, params: Params):
+    """Barrier weight of each kind: the cost scale of its dual (alpha for the
+    force parts and drag maxima, the row's cost c for the residual pairs),
+    so that all complementarity products are of one size."""
+    a = params.alpha
+    return (a, a, a, a, ctx.cost, ctx.cost)
+
+
+def _slacks(x, ctx: _Ctx):
+    S, D, t = x
+    return D, S, _ext(t)[ctx.owner] - ctx.o0 * D, t
+
+
+def _msk(v, on, fill=0.0):
+    return jnp.where(on, v, fill)
+
+
+class _Pieces(NamedTuple):
+    """Newton system pieces: diagonal curvatures, couplings, the residual rows'
+    curvature ``ddpsi`` and the right-hand side."""
+
+    hS: jnp.ndarray  # (m,)
+    hD: jnp.ndarray  # (m,) h0 + o^2 h2 (pairs), 1 otherwise
+    h0: jnp.ndarray  # (m,) curvature of D >= 0 alone (pairs)
+    f: jnp.ndarray  # (m,) dR_D / dt_owner
+    g: jnp.ndarray  # (m,) dR_t / dD
+    h2o: jnp.ndarray  # (m,) o h2 (t's own curvature from column p)
+    h3: jnp.ndarray  # (n,)
+    ddpsi: jnp.ndarray  # (n, 6)
+
+
+def _compliance(ctx: _Ctx, opts: LossOptions):
+    """Per column: compliance * (1 - w_p), the curvature of the cost
+    ``eps (1 - w_p) / 2 (S^2 + D^2)`` (per unit of existence) of the contacts
+    of partly existing bricks; 0 for fully present ones (exact Eq. 9)."""
+    return jnp.where(ctx.real, opts.compliance * (1.0 - ctx.wcol), 0.0)
+
+
+def _system(x, ctx: _Ctx, dpsi, ddpsi, zeta, h, opts: LossOptions):
+    """Right-hand side R (divided by the weights) and the Jacobian pieces.
+
+    ``dpsi`` (n, 6): derivative of the residual rows' cost w.r.t. rho (their
+    price); ``ddpsi``: its curvature; ``zeta``/``h`` per kind: the barrier
+    multipliers and curvatures of kinds 0-3.
+
+        R_S = A^T dpsi + gamma[knob] - zeta1 + e S
+        R_D = -A^T dpsi + beta[normal] + gamma[knob] - zeta0 + o zeta2 + e D
+
+    with e the compliance of partly existing bricks' contacts.
+        R_t = alpha - zeta3 - sum_owner o zeta2
+    """
+    p = opts.params
+    S, D, t = x
+    n = ctx.g.shape[0]
+    z0, z1, z2, z3 = (_msk(v, on) for v, on in zip(zeta, _masks(ctx)[:4]))
+    h0, h1, h2, h3 = (_msk(v, on) for v, on in zip(h, _masks(ctx)[:4]))
+    o = ctx.o0
+    atp = _apply_t(ctx.coef, ctx.cb, dpsi)
+    kc = jnp.where(ctx.knob, opts.knob_cost, 0.0)
+    ec = _compliance(ctx, opts)
+    rS = jnp.where(ctx.real, atp + kc - z1 + ec * S, S)
+    rD = jnp.where(ctx.pair, -atp + jnp.where(ctx.normal, p.beta, 0.0) + kc - z0 + o * z2 + ec * D, D)
+    rt = p.alpha - z3 - _owner_sum(ctx, o * z2, n)
+    pieces = _Pieces(
+        hS=jnp.where(ctx.real, h1 + ec, 1.0),
+        hD=jnp.where(ctx.pair, h0 + o * o * h2 + ec, 1.0),
+        h0=h0 + ec,
+        f=-o * h2,
+        g=-o * o * h2,
+        h2o=o * h2,
+        h3=h3,
+        ddpsi=ddpsi,
+    )
+    return (rS, rD, rt), pieces
+
+
+# --------------------------------------------------------------------------
+# linear algebra
+
+
+class _Lin(NamedTuple):
+    """A factorised Newton matrix (or its transpose)."""
+
+    pc: _Pieces
+    lu: jnp.ndarray  # LU of the (7 n) system in (y, t)
+    piv: jnp.ndarray
+    transpose: bool
+
+
+def _fg(pc: _Pieces, transpose: bool):
+    return (pc.g, pc.f) if transpose else (pc.f, pc.g)
+
+
+def _factor(ctx: _Ctx, pc: _Pieces, transpose: bool = False) -> _Lin:
+    """Factor the Newton matrix (or its transpose).
+
+    Unknowns: per column (S_p, D_p) (diagonal blocks), per brick t_b, and
+    y = diag(ddpsi) A~ dphi (the change of the residual rows' prices).
+    Eliminating S and D per column leaves one dense LU of the (6 n + n)
+    system in (y, t):
+
+        [ diag(1/ddpsi) + A~ diag(theta) A^T    -A~ diag(f / hD) ] [y]
+        [ diag(g / hD) A                          diag(ktt)       ] [t]
+
+    with theta = 1/hS + [pair]/hD and ktt = tt - sum g f / hD written without
+    cancellation. The transpose swaps f and g and A and A~.
+    """
+    f, g = _fg(pc, transpose)
+    n = ctx.g.shape[0]
+    theta = 1.0 / pc.hS + jnp.where(ctx.pair, 1.0 / pc.hD, 0.0)
+    theta = jnp.where(ctx.real, theta, 0.0)
+    ktt = pc.h3 + _owner_sum(ctx, jnp.where(ctx.normal, pc.h2o * pc.h0 / pc.hD, 0.0), n)
+    m = pc.hS.shape[0]
+    left, right = (ctx.coef, ctx.coef_t) if transpose else (ctx.coef_t, ctx.coef)
+    idx = (ctx.cb[:, :, None] * 6 + jnp.arange(6)[None, None, :]).reshape(m, 12)
+    al = left.reshape(m, 12)
+    ar = right.reshape(m, 12)
+    N = 6 * (n + 1)
+    K = jnp.zeros((N, N), theta.dtype)
+    K = K.at[idx[:, :, None], idx[:, None, :]].add(al[:, :, None] * (theta[:, None, None] * ar[:, None, :]))
+    Kyt = jnp.zeros((N, n + 1), theta.dtype).at[idx, ctx.owner[:, None]].add(al * (f / pc.hD)[:, None])
+    Kty = jnp.zeros((n + 1, N), theta.dtype).at[ctx.owner[:, None], idx].add(ar * (g / pc.hD)[:, None])
+    top = jnp.concatenate([K[: 6 * n, : 6 * n] + jnp.diag(1.0 / pc.ddpsi.reshape(-1)), -Kyt[: 6 * n, :n]], axis=1)
+    bot = jnp.concatenate([Kty[:n, : 6 * n], jnp.diag(ktt)], axis=1)
+    lu, piv = jax.scipy.linalg.lu_factor(jnp.concatenate([top, bot], axis=0))
+    return _Lin(pc=pc, lu=lu, piv=piv, transpose=transpose)
+
+
+def _matvec(ctx: _Ctx, pc: _Pieces, d, transpose: bool = False):
+    """J d (or J^T d) from the pieces (for tests and checks)."""
+    f, g = _fg(pc, transpose)
+    dS, dD, dt = d
+    n = dt.shape[0]
+    left, right = (ctx.coef, ctx.coef_t) if transpose else (ctx.coef_t, ctx.coef)
+    yv = _apply_t(right, ctx.cb, pc.ddpsi * _apply(left, ctx.cb, _phi(d, ctx), n))
+    tt = pc.h3 + _owner_sum(ctx, jnp.where(ctx.normal, pc.h2o, 0.0), n)
+    jS = pc.hS * dS + jnp.where(ctx.real, yv, 0.0)
+    jD = pc.hD * dD - jnp.where(ctx.pair, yv, 0.0) + jnp.where(ctx.normal, f * _ext(dt)[ctx.owner], 0.0)
+    jt = _owner_sum(ctx, jnp.where(ctx.normal, g * dD, 0.0), n) + tt * dt
+    return jS, jD, jt
+
+
+def _solve(ctx: _Ctx, lin: _Lin, r):
+    """Solve J d = r (J^T d = r for a transposed factorisation), r = (r_S, r_D, r_t).
+
+    Returns (d, y, d2): d = (dS, dD, dt), y the residual-price part, d2 =
+    dt_owner - o dD (the change of the t - o D slack) computed without
+    cancellation."""
+    pc = lin.pc
+    f, g = _fg(pc, lin.transpose)
+    rS, rD, rt = r
+    n = rt.shape[0]
+    left, right = (ctx.coef, ctx.coef_t) if lin.transpose else (ctx.coef_t, ctx.coef)
+    u = jnp.where(ctx.real, rS / pc.hS, 0.0) - jnp.where(ctx.pair, rD / pc.hD, 0.0)
+    ry = _apply(left, ctx.cb, u, n).reshape(-1)
+    rtt = rt - _owner_sum(ctx, jnp.where(ctx.pair, g * rD / pc.hD, 0.0), n)
+    sol = jax.scipy.linalg.lu_solve((lin.lu, lin.piv), jnp.concatenate([ry, rtt]))
+    y, dt = sol[: 6 * n].reshape(n, 6), sol[6 * n:]
+    aty = _apply_t(right, ctx.cb, y)
+    dte = _ext(dt)[ctx.owner]
+    dS = jnp.where(ctx.real, (rS - aty) / pc.hS, rS)
+    qD = rD + aty
+    dD = jnp.where(ctx.pair, (qD - f * dte) / pc.hD, rD)
+    d2 = dte * pc.h0 / pc.hD - ctx.o0 * qD / pc.hD  # = dt_owner - o dD for NORMAL columns
+    return (dS, dD, dt), y, d2
+
+
+# --------------------------------------------------------------------------
+# the interior-point method
+
+
+def _ratio(v, dv, on):
+    """Largest step keeping v + step dv > 0 over ``on`` (inf if none)."""
+    lim = jnp.where(dv < 0, -v / jnp.where(dv < 0, dv, -1.0), jnp.inf)
+    return jnp.where(on, lim, jnp.inf).min()
+
+
+def _axpy(t, d, x):
+    return jax.tree_util.tree_map(lambda a, b: a + t * b, x, d)
+
+
+def _start(ctx: _Ctx, wts):
+    m, n = ctx.real.shape[0], ctx.g.shape[0]
+    dtype = ctx.g.dtype
+    S = jnp.where(ctx.real, 1.0, 0.0).astype(dtype)
+    D = jnp.where(ctx.pair, 1.0, 0.0).astype(dtype)
+    x = (S, D, jnp.full((n,), 2.0, dtype))
+    rho = _rho(ctx, _phi(x, ctx))
+    r = 1.0 + jnp.maximum(rho, 0.0)
+    s = tuple(jnp.ones_like(v) for v in _slacks(x, ctx)) + (r, r - rho)
+    z = tuple(jnp.ones_like(v) * w for v, w in zip(s, wts))
+    return x, r, s, z
+
+
+def _ipm(ctx: _Ctx, opts: LossOptions):
+    """Infeasible primal-dual interior point (Mehrotra predictor-corrector)
+    with slack variables s and duals z per inequality (only s, z > 0 is
+    kept: fraction 0.99 to the boundary, no line search).
+
+    The barrier of inequality kind k is weighted by w_k (:func:`_weights`);
+    each iteration targets ``tau = max(mu, sigma mean(s z / w))``; once
+    ``tau = mu`` the steps are pure centring steps towards the point of the
+    central path at ``mu``, which is returned (with the residual rows' price
+    and curvature there, for the backward pass, and the optimality residual)."""
+    dtype = ctx.g.dtype
+    n = ctx.g.shape[0]
+    ons = _masks(ctx)
+    wts = _weights(ctx, opts.params)
+    n_pairs = sum(jnp.sum(o) for o in ons)
+    cost = ctx.cost
+
+    def mean_gap(s, z):
+        return sum(_msk(sv * zv / w, o).sum() for sv, zv, o, w in zip(s, z, ons, wts)) / n_pairs
+
+    def pieces(x, r, s, z, target):
+        rho = _rho(ctx, _phi(x, ctx))
+        shat = tuple(_slacks(x, ctx)) + (r, r - rho)
+        rp = tuple(_msk(sv - sh, o) for sv, sh, o in zip(s, shat, ons))  # primal residuals
+        h = tuple(zv / sv for zv, sv in zip(z, s))
+        zeta = tuple(tg / sv + hv * rv for sv, hv, rv, tg in zip(s, h, rp, target))
+        # eliminate r: R_r = 2c - zeta_a - zeta_b, J_rr = h_a + h_b, J_r,rho = -h_b
+        R_r = 2.0 * cost - zeta[4] - zeta[5]
+        jrr = h[4] + h[5]
+        dpsi = -cost + zeta[5] + h[5] * R_r / jrr
+        ddpsi = h[4] * h[5] / jrr
+        rr, pc = _system(x, ctx, dpsi, ddpsi, zeta[:4], h[:4], opts)
+        return rp, h, R_r, dpsi, rr, pc
+
+    def direction(x, r, s, z, target, lin):
+        rp, h, _, dpsi, rr, _ = pieces(x, r, s, z, target)
+        (dS, dD, dt), y, d2 = _solve(ctx, lin, rr)
+        dx = (-dS, -dD, -dt)
+        # the residual rows' duals from y (the backward-stable part of the
+        # solve): their dual equations hold to rounding, and the rounding
+        # goes to the primal equation r - rho = s_b (absolute, tiny)
+        dzb = (dpsi - y) + cost - z[5]
+        dza = 2.0 * cost - z[4] - z[5] - dzb
+        drho = -_apply(ctx.coef_t, ctx.cb, _phi((dS, dD, dt), ctx), n)
+        comp = lambda k, dzk: (target[k] - s[k] * z[k] - s[k] * dzk) / z[k]  # noqa: E731
+        zcomp = lambda k, dsk: (target[k] - s[k] * z[k] - z[k] * dsk) / s[k]  # noqa: E731
+        # each pair's step goes through its active side(s) (h = z/s > 1): a
+        # slack step from complementarity divides by z, exact only where z is
+        # not tiny; the inactive side follows from the primal equations
+        act_a, act_b = h[4] > 1.0, h[5] > 1.0
+        dsa1, dsb1 = comp(4, dza), comp(5, dzb)
+        dr_a = dsa1 + rp[4]  # through a
+        dr_b = dsb1 + drho + rp[5]  # through b
+        use_b = act_b & ~act_a
+        dr = jnp.where(use_b, dr_b, dr_a)
+        dsa = jnp.where(use_b, dr - rp[4], dsa1)
+        dsb = jnp.where(act_b, dsb1, dr - drho - rp[5])
+        dza = jnp.where(use_b, zcomp(4, dsa), dza)
+        dzb = jnp.where(act_b, dzb, zcomp(5, dsb))
+        dshat = (dx[1], dx[0], -d2, dx[2])
+        ds = [_msk(dv - rv, o) for dv, rv, o in zip(dshat, rp[:4], ons[:4])]
+        dz = [_msk(zcomp(k, ds[k]), ons[k]) for k in range(4)]
+        # force parts: an active side's dual from its dual equation (given the
+        # new residual prices p = dpsi - y), its slack step from complementarity
+        atp = _apply_t(ctx.coef, ctx.cb, dpsi - y)
+        kc = jnp.where(ctx.knob, opts.knob_cost, 0.0)
+        act = [h[k] > 1.0 for k in range(4)]
+        on1 = act[1] & ctx.real
+        ec = _compliance(ctx, opts)
+        dz1 = atp + kc + ec * (x[0] + dx[0]) - z[1]  # S row: A^T p + gamma + e S - z_S = 0
+        dz[1] = jnp.where(on1, dz1, dz[1])
+        ds[1] = jnp.where(on1, comp(1, dz1), ds[1])
+        o = ctx.o0
+        base = -atp + jnp.where(ctx.normal, opts.params.beta, 0.0) + kc + ec * (x[1] + dx[1])  # D row: base - z0 + o z2 = 0
+        on0 = act[0] & ctx.pair & ~(act[2] & ctx.normal)
+        dz0 = base + o * (z[2] + dz[2]) - z[0]
+        dz[0] = jnp.where(on0, dz0, dz[0])
+        ds[0] = jnp.where(on0, comp(0, dz0), ds[0])
+        on2 = act[2] & ctx.normal & ~act[0] & (o > 0.5)
+        dz2 = (z[0] + dz[0] - base) / jnp.where(on2, o, 1.0) - z[2]
+        dz[2] = jnp.where(on2, dz2, dz[2])
+        ds[2] = jnp.where(on2, comp(2, dz2), ds[2])
+        ds = tuple(_msk(v, on) for v, on in zip(ds, ons[:4])) + (dsa, dsb)
+        dz = tuple(_msk(v, on) for v, on in zip(dz, ons[:4])) + (dza, dzb)
+        step = jnp.asarray(1.0, dtype)
+        for sv, dsv, zv, dzv, o in zip(s, ds, z, dz, ons):
+            step = jnp.minimum(step, jnp.minimum(_ratio(sv, dsv, o), _ratio(zv, dzv, o)))
+        return dx, dr, ds, dz, step
+
+    def primal(state):
+        x, r, s, _ = state
+        shat = tuple(_slacks(x, ctx)) + (r, r - _rho(ctx, _phi(x, ctx)))
+        return jnp.max(jnp.stack([jnp.abs(_msk(sv - sh, o)).max() for sv, sh, o in zip(s, shat, ons)]))
+
+    def centrality(s, z, tau):
+        return jnp.max(jnp.stack([jnp.abs(_msk(sv * zv / (w * tau) - 1.0, o)).max()
+                                  for sv, zv, o, w in zip(s, z, ons, wts)]))
+
+    def body(carry):
+        state, done, it = carry
+        new = step_once(state)
+        # stop once centred on the final barrier parameter: further centring
+        # steps only stir rounding errors around
+        x, r, s, z = new
+        mu_now = mean_gap(s, z)
+        ok = (mu_now <= 1.5 * opts.mu) & (centrality(s, z, opts.mu) <= opts.centred)
+        # guard: near the end a step that loses primal feasibility (rounding
+        # in a near-singular system) is refused and the iterate kept
+        bad = (primal(new) > jnp.maximum(1e-6, 10.0 * primal(state))) & (mean_gap(*state[2:]) < 1e-3)
+        out = jax.tree_util.tree_map(lambda a, b: jnp.where(done | bad, a, b), state, new)
+        return out, done | ok | bad, it + 1
+
+    def step_once(state):
+        x, r, s, z = state
+        mu = mean_gap(s, z)
+        # one factorisation per iteration (the matrix does not depend on the target)
+        _, _, _, _, _, pc = pieces(x, r, s, z, wts)
+        lin = _factor(ctx, pc)
+        # predictor (affine scaling, target 0) ...
+        zero = tuple(jnp.zeros_like(v) for v in s)
+        _, _, ds_a, dz_a, st_a = direction(x, r, s, z, zero, lin)
+        st_a = jnp.minimum(st_a, 1.0)
+        mu_a = mean_gap(_axpy(st_a, ds_a, s), _axpy(st_a, dz_a, z))
+        sigma = jnp.clip((mu_a / mu) ** 3, 0.0, 1.0)
+        tau = jnp.maximum(opts.mu, sigma * mu)
+        # ... and corrector (centring towards tau plus the second-order term;
+        # pure centring once the target is the final mu)
+        final = tau <= opts.mu
+        target = tuple(tau * w - jnp.where(final, 0.0, _msk(dsv * dzv, o))
+                       for w, dsv, dzv, o in zip(wts, ds_a, dz_a, ons))
+        dx, dr, ds, dz, step = direction(x, r, s, z, target, lin)
+        step = jnp.minimum(1.0, 0.99 * step)
+        return _axpy(step, dx, x), r + step * dr, _axpy(step, ds, s), _axpy(step, dz, z)
+
+    (x, r, s, z), _, _ = jax.lax.while_loop(lambda c: (~c[1]) & (c[2] < opts.iters), body,
+                                            (_start(ctx, wts), jnp.asarray(False), jnp.asarray(0)))
+    # optimality residuals with the actual duals: stationarity (z in place of
+    # the barrier multipliers), primal feasibility, centrality; and the
+    # residual rows' price and curvature for the backward pass
+    rp, h, _, _, _, pc = pieces(x, r, s, z, tuple(sv * zv for sv, zv in zip(s, z)))
+    stat, _ = _system(x, ctx, -cost + z[5], pc.ddpsi, z[:4], h[:4], opts)
+    stat = tuple(jnp.where(on, v, 0.0) for v, on in zip(stat, (ctx.real, ctx.pair, jnp.ones((n,), bool))))
+    res = jnp.max(jnp.stack([jnp.abs(v).max() for v in stat] + [jnp.abs(v).max() for v in rp]
+                            + [jnp.abs(2.0 * cost - z[4] - z[5]).max()]))
+    res = jnp.where(centrality(s, z, opts.mu) <= 0.5, res, jnp.maximum(res, 1.0))
+    return x, (-cost + z[5], pc.ddpsi, res)
+
+
+# --------------------------------------------------------------------------
+# implicit differentiation
+
+
+@functools.partial(jax.custom_vjp, nondiff_argnums=(3,))
+def _x_star(weights, loads, prob, opts):
+    """(x, aux): the solution x = (S, D, t) and, not differentiable, aux =
+    (dpsi, ddpsi, res) (residual rows' price and curvature, optimality residual)."""
+    return _ipm(_context(weights, loads, prob, opts.params), opts)
+
+
+def _x_fwd(weights, loads, prob, opts):
+    out = _x_star(weights, loads, prob, opts)
+    return out, (out, weights, loads, prob)
+
+
+def _barrier_system(x, ctx: _Ctx, ctx0: _Ctx, dpsi, ddpsi, opts: LossOptions):
+    """Optimality conditions R of the barrier problem at ``opts.mu`` (all
+    barrier multipliers ``mu w / slack``), with the residual rows' price
+    linearised around the solution: exact value and first derivatives at the
+    solution (where ``ctx == ctx0``; ``ctx0=None``: the price frozen). (Their
+    closed form, sqrt-type in rho, is too sensitive to rounding at small mu
+    to evaluate directly.)"""
+    mu = opts.mu
+    wts = _weights(ctx, opts.params)[:4]
+    sl = [_msk(v, on, 1.0) for v, on in zip(_slacks(x, ctx), _masks(ctx)[:4])]
+    dp = dpsi if ctx0 is None else dpsi + ddpsi * (_rho(ctx, _phi(x, ctx)) - _rho(ctx0, _phi(x, ctx0)))
+    return _system(x, ctx, dp, ddpsi, [mu * w / v for v, w in zip(sl, wts)],
+                   [mu * w / (v * v) for v, w in zip(sl, wts)], opts)
+
+
+def _x_bwd(opts, res, ct):
+    """R(x*(theta), theta) = 0, so theta_bar = -(dR/dtheta)^T J^-T x_bar.
+
+    R depends on theta through the residual rows (rho) and through the
+    other-brick weights in the drag-maximum constraints. The rho part of
+    lam^T dR/dtheta is ``y^T drho/dtheta`` with ``y = ddpsi A lam_phi`` taken
+    from the backward-stable part of the transposed solve (forming it from
+    lam_phi would amplify rounding by the huge curvatures of a near-LP)."""
+    (x, (dpsi, ddpsi, _)), weights, loads, prob = res
+    ctx0 = _context(weights, loads, prob, opts.params)
+    _, pc = _barrier_system(x, ctx0, ctx0, dpsi, ddpsi, opts)
+    lam, y, _ = _solve(ctx0, _factor(ctx0, pc, transpose=True), ct[0])
+
+    def rfun(w, l):  # R with the residual rows' price frozen
+        return _barrier_system(x, _context(w, l, prob, opts.params), None, dpsi, ddpsi, opts)[0]
+
+    def rhofun(w, l):
+        ctx = _context(w, l, prob, opts.params)
+        return _rho(ctx, _phi(x, ctx))
+
+    _, vjp = jax.vjp(rfun, weights, loads)
+    gw, gl = vjp(jax.tree_util.tree_map(jnp.negative, lam))
+    _, vjp_rho = jax.vjp(rhofun, weights, loads)
+    gw2, gl2 = vjp_rho(-y)
+    return gw + gw2, gl + gl2, None
+
+
+_x_star.defvjp(_x_fwd, _x_bwd)
+
+
+# --------------------------------------------------------------------------
+# public API
+
+
+def _prep(weights, loads, prob):
+    n = prob.mass.shape[0]
+    weights = jnp.asarray(weights, jnp.float64)
+    loads = jnp.zeros((n,), jnp.float64) if loads is None else jnp.asarray(loads, jnp.float64)
+    return weights, loads
+
+
+def _terms(weights, loads, prob, opts):
+    weights, loads = _prep(weights, loads, prob)
+    x, aux = _x_star(weights, loads, prob, opts)
+    ctx = _context(weights, loads, prob, opts.params)
+    return ctx, x, aux
+
+
+def solve_soft(weights, loads, prob: SoftProblem, opts: LossOptions = LossOptions()) -> SoftSolution:
+    """Solve the smooth Eq. 9 problem of ``prob`` at ``weights`` (n,) and
+    extra ``loads`` (n,) kg (None: no loads). Differentiable in weights and
+    loads (implicit differentiation)."""
+    ctx, x, aux = _terms(weights, loads, prob, opts)
+    phi = _phi(x, ctx)
+    res = jax.lax.stop_gradient(aux[2])
+    return SoftSolution(phi=phi, max_drag=x[2] * opts.params.T, force=phi * ctx.wcol * opts.params.T,
+                        converged=res <= opts.tol, opt_res=res)
+
+
+def brick_loss(weights, loads, prob: SoftProblem, temperature: float | None = None,
+               opts: LossOptions = LossOptions()):
+    """Per-brick loss (n,): ``w_b [tau softplus((t_b - 1)/tau) + E_b]`` with t_b
+    the brick's largest drag and E_b its equilibrium residual, both in units
+    of T (see the module docstring). ``temperature`` overrides
+    ``opts.temperature``. Padding and absent bricks give 0."""
+    tau = opts.temperature if temperature is None else temperature
+    ctx, x, _ = _terms(weights, loads, prob, opts)
+    s = opts.residual_smoothing
+    rho = _rho(ctx, _phi(x, ctx))
+    resid = (ctx.cost * (jnp.sqrt(rho * rho + s * s) - s)).sum(axis=1)
+    hinge = tau * jax.nn.softplus((x[2] - 1.0) / tau)
+    return ctx.om * (hinge + resid)
+
+
+def stability_loss(weights, loads, prob: SoftProblem, temperature: float | None = None,
+                   opts: LossOptions = LossOptions()):
+    """Scalar stability loss: the sum of :func:`brick_loss`."""
+    return brick_loss(weights, loads, prob, temperature, opts).sum()
+
+
+def _residual_bad(rho, params: Params):
+    # rho is scaled: forces / T, torques / (T stud); Eq. 10 tolerance eq_tol N and eq_tol * stud N m
+    tol = params.eq_tol / params.T
+    return (jnp.abs(rho[:, :3]).max(axis=1) > tol) | (jnp.abs(rho[:, 3:]).max(axis=1) > tol)
+
+
+def fail_prob(weights, loads, prob: SoftProblem, temperature: float | None = None,
+              opts: LossOptions = LossOptions()):
+    """Smooth Eq. 10 failure indicator per brick: ``sigmoid((t_b - 1)/tau)``
+    (1 for bricks out of equilibrium); tends to Eq. 10's indicator as
+    ``tau -> 0``. Absent and padding bricks give 0."""
+    tau = opts.temperature if temperature is None else temperature
+    ctx, x, _ = _terms(weights, loads, prob, opts)
+    rho = _rho(ctx, _phi(x, ctx))
+    p = jax.nn.sigmoid((x[2] - 1.0) / tau)
+    return jnp.where(ctx.om > 0, jnp.where(_residual_bad(rho, opts.params), 1.0, p), 0.0)
+
+
+def soft_scores(weights, loads, prob: SoftProblem, opts: LossOptions = LossOptions()):
+    """Eq. 10 applied to the smooth solution (per unit of existence).
+
+    Returns (scores (n,), max_drag (n,) N, residual_bad (n,) bool); scores
+    are 1 for bricks out of equilibrium or with drag >= T, else drag / T,
+    and 0 for padding and absent (w = 0) bricks.
+    """
+    ctx, x, _ = _terms(weights, loads, prob, opts)
+    phi = _phi(x, ctx)
+    d = jnp.where(ctx.normal, jnp.maximum(-phi, 0.0) * ctx.o0, 0.0)
+    dm = _ext(d)[ctx.group].max(axis=1)
+    rho = _rho(ctx, phi)
+    bad = _residual_bad(rho, opts.params)
+    score = jnp.where(bad | (dm >= 1.0), 1.0, dm)
+    present = ctx.om > 0
+    return jnp.where(present, score, 0.0), dm * opts.params.T, bad & present

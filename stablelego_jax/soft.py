@@ -1,0 +1,354 @@
+"""Soft layouts: a layout plus candidate bricks, compiled to one fixed-shape problem.
+
+Every brick of a soft layout has an *existence weight* ``w`` in [0, 1]. The
+meaning (the "scaled brick") is the one the differentiable loss
+(:mod:`stablelego_jax.loss`) is built on:
+
+* a brick of weight ``w`` weighs ``w (m + load) g``;
+* every force through one of its contacts is ``w`` times the force per unit
+  of existence that the solver chooses (a contact between bricks of weights
+  ``w1`` and ``w2`` of different units carries ``w1 w2`` times it);
+* each of its own Eq. 9 cost terms (its equilibrium residual, its largest
+  drag) counts ``w`` times, evaluated on the forces per unit of existence.
+
+So ``w = 0`` is exactly the absent brick: no weight, no force on any other
+brick, nothing in any other brick's residual or drag maximum, no cost; and
+``w = 1`` is exactly the present brick. In between the brick is faded in
+smoothly, and the derivative at ``w = 0`` is the first-order effect of
+adding it (see :mod:`stablelego_jax.loss`).
+
+A *candidate* (:class:`Candidate`) is a unit of one or more bricks placed
+together (e.g. a support pillar of several bricks); all bricks of a unit
+share one weight, the weight of its first brick. Candidates are compiled
+against the layout (the *base*) only: a candidate has contacts with base
+bricks, the baseplate and bricks of its own unit, never with other
+candidates, so candidates may overlap each other (they are alternatives).
+A candidate may ``replace`` a base brick (``--allow-remove`` repairs): its
+contacts are then computed without that brick.
+
+Shapes: ``n`` bricks (base first, then candidate bricks in order), ``m``
+force columns (the base layout's columns as :func:`model.compile_layout`
+makes them, then each candidate's), ``P`` contact points per brick bottom.
+"""
+from __future__ import annotations
+
+import dataclasses
+from typing import NamedTuple, Sequence
+
+import numpy as np
+
+from .layout import TABLE_I_MASS_KG, Layout, LayoutError, make_layout
+from .model import KNOB, NORMAL, ForceModel, Params, bucket_size, compile_layout
+
+__all__ = [
+    "Candidate",
+    "SoftProblem",
+    "SoftLayout",
+    "compile_soft",
+    "soft_problem",
+    "pad_soft",
+    "stack_soft",
+    "candidate_brick",
+]
+
+
+class SoftProblem(NamedTuple):
+    """Array-only pytree of a soft layout (numpy or JAX arrays; ``vmap``-able
+    after :func:`stack_soft`).
+
+    col_brick: (m, 2) int32 bricks of each column (slot 0 upper / + side,
+      slot 1 lower / - side); ``n`` = the baseplate (or nothing).
+    col_coef: (m, 2, 6) wrench per unit force on each slot (N, N m), as
+      :class:`~stablelego_jax.model.ForceModel`.
+    col_kind: (m,) int8 NORMAL / KNOB / SIDE.
+    col_mask: (m,) bool real columns.
+    group: (n, P) int32 NORMAL columns on each brick's bottom (``m`` = none).
+    mass: (n,) kg of each brick (without extra loads).
+    brick_mask: (n,) bool real bricks.
+    unit: (n,) int32 the unit of each brick: the index of the unit's first
+      brick (a base brick is its own unit). Bricks of one unit share the
+      weight of that first brick, and contacts inside a unit scale with it
+      once.
+    """
+
+    col_brick: np.ndarray
+    col_coef: np.ndarray
+    col_kind: np.ndarray
+    col_mask: np.ndarray
+    group: np.ndarray
+    mass: np.ndarray
+    brick_mask: np.ndarray
+    unit: np.ndarray
+
+
+@dataclasses.dataclass(frozen=True)
+class Candidate:
+    """A unit of bricks that a repair may add (all or none).
+
+    pos: (k, 3) corner cells; size: (k, 2) extents (studs along x, y);
+    mass: (k,) kg; brick_id: library ids ("" = the real brick of that size);
+    ori: (k,) StableLego orientation; kind: "support", "bridge",
+    "replace", ... (for reports); replaces: index of the base brick this
+    unit replaces (-1: none; only ``--allow-remove`` repairs use it);
+    note: human-readable description.
+    """
+
+    pos: np.ndarray
+    size: np.ndarray
+    mass: np.ndarray
+    brick_id: tuple
+    ori: np.ndarray
+    kind: str = "support"
+    replaces: int = -1
+    note: str = ""
+
+    @property
+    def k(self) -> int:
+        return len(self.pos)
+
+    def cells(self) -> set:
+        out = set()
+        for (x, y, z), (sx, sy) in zip(self.pos.tolist(), self.size.tolist()):
+            for dx in range(sx):
+                for dy in range(sy):
+                    out.add((x + dx, y + dy, z))
+        return out
+
+
+def candidate_brick(bricks: Sequence[tuple], kind: str = "support", replaces: int = -1, note: str = "") -> Candidate:
+    """A candidate of real (Table I) bricks given as ``(x, y, z, sx, sy)``
+    tuples; masses, library ids and ori from the StableLego library."""
+    from .io import _library_id_for
+
+    pos, size, mass, bids, oris = [], [], [], [], []
+    for x, y, z, sx, sy in bricks:
+        key = (min(sx, sy), max(sx, sy))
+        if key not in TABLE_I_MASS_KG:
+            raise ValueError(f"{sx}x{sy} is not a Table I brick")
+        bid, ori = _library_id_for(int(sx), int(sy))
+        pos.append((int(x), int(y), int(z)))
+        size.append((int(sx), int(sy)))
+        mass.append(TABLE_I_MASS_KG[key])
+        bids.append(bid)
+        oris.append(ori)
+    return Candidate(
+        pos=np.asarray(pos, np.int64).reshape(-1, 3), size=np.asarray(size, np.int64).reshape(-1, 2),
+        mass=np.asarray(mass, np.float64), brick_id=tuple(bids), ori=np.asarray(oris, np.int64),
+        kind=kind, replaces=int(replaces), note=note,
+    )
+
+
+@dataclasses.dataclass
+class SoftLayout:
+    """A base layout, its candidates and their compiled :class:`SoftProblem`.
+
+    Bricks ``0 .. n_base-1`` are the base layout's (in its order), then the
+    bricks of candidate 0, candidate 1, ... ``unit_bricks[k]`` holds the
+    brick indices of candidate ``k``; ``unit_index[k]`` its first brick
+    (where its weight lives).
+    """
+
+    base: Layout
+    candidates: tuple
+    problem: SoftProblem
+    params: Params
+    unit_bricks: list
+    unit_index: np.ndarray
+
+    @property
+    def n(self) -> int:
+        return int(self.problem.mass.shape[0])
+
+    @property
+    def n_base(self) -> int:
+        return self.base.n
+
+    def weights(self, present: Sequence[int] = ()) -> np.ndarray:
+        """(n,) weights: base bricks 1, candidates 0 except those in ``present``
+        (a candidate that replaces a base brick sets that brick to 0)."""
+        w = np.zeros(self.n)
+        w[: self.n_base] = 1.0
+        for k in present:
+            w[self.unit_bricks[k]] = 1.0
+            r = self.candidates[k].replaces
+            if r >= 0:
+                w[r] = 0.0
+        return w
+
+    def layout_with(self, chosen: Sequence[int], keys: Sequence[str] | None = None) -> Layout:
+        """The real layout: base plus the chosen candidates (minus the bricks
+        they replace). New bricks get ``keys`` (default: fresh integer keys
+        after the largest integer key of the base)."""
+        return apply_candidates(self.base, [self.candidates[k] for k in chosen], keys)
+
+
+def fresh_keys(existing: Sequence[str], count: int) -> list[str]:
+    """``count`` keys not in ``existing``: integers after the largest integer key."""
+    used = set(existing)
+    nums = [int(k) for k in existing if k.isdigit()]
+    nxt = (max(nums) + 1) if nums else len(existing) + 1
+    out = []
+    while len(out) < count:
+        if str(nxt) not in used:
+            out.append(str(nxt))
+            used.add(str(nxt))
+        nxt += 1
+    return out
+
+
+def apply_candidates(base: Layout, cands: Sequence[Candidate], keys: Sequence[str] | None = None) -> Layout:
+    """``base`` plus the bricks of ``cands`` (minus the base bricks they replace),
+    validated (LayoutError on overlap). Base bricks keep their keys and
+    data; new bricks get ``keys`` or fresh keys."""
+    drop = {c.replaces for c in cands if c.replaces >= 0}
+    keep = [i for i in range(base.n) if i not in drop]
+    k_new = sum(c.k for c in cands)
+    if keys is None:
+        keys = fresh_keys(base.keys, k_new)
+    if len(keys) != k_new:
+        raise ValueError(f"need {k_new} keys, got {len(keys)}")
+    pos = [base.pos[keep]] + [c.pos for c in cands]
+    size = [base.size[keep]] + [c.size for c in cands]
+    mass = [base.mass[keep]] + [c.mass for c in cands]
+    bids = [base.brick_id[i] for i in keep] + [b for c in cands for b in c.brick_id]
+    ori = [base.ori[keep]] + [c.ori for c in cands]
+    return make_layout(
+        [base.keys[i] for i in keep] + list(keys),
+        np.concatenate(pos), np.concatenate(size), np.concatenate(mass), bids, np.concatenate(ori),
+        source=base.source, fmt=base.fmt,
+    )
+
+
+def _columns(model: ForceModel):
+    m = model.m
+    return (model.col_brick[:m].copy(), model.col_coef[:m].copy(), model.col_kind[:m].copy())
+
+
+def compile_soft(layout: Layout, candidates: Sequence[Candidate] = (), params: Params = Params()) -> SoftLayout:
+    """Compile ``layout`` and ``candidates`` into one :class:`SoftLayout`.
+
+    The base columns are exactly :func:`~stablelego_jax.model.compile_layout`'s;
+    each candidate's columns are those of the layout "base neighbourhood +
+    candidate" (minus a replaced brick) that touch a candidate brick, so a
+    soft layout with one candidate at weight 1 is the layout with that brick
+    added. Raises LayoutError (naming the layout's source) when a candidate
+    overlaps a base brick or its own bricks overlap.
+    """
+    base_model = compile_layout(layout, params)
+    nb = layout.n
+    cb, coef, kind = _columns(base_model)
+    cb = np.where(cb >= nb, -1, cb)  # -1: baseplate for now
+    cols_b, cols_c, cols_k = [cb], [coef], [kind]
+    masses = [np.asarray(layout.mass, np.float64)]
+    unit = [np.arange(nb)]
+    unit_bricks, unit_index = [], []
+    start = nb
+    lo_all = layout.pos
+    hi_all = layout.pos + np.concatenate([layout.size, np.ones((nb, 1), np.int64)], axis=1)
+    for ci, c in enumerate(candidates):
+        k = c.k
+        if k == 0:
+            raise ValueError(f"candidate {ci} has no bricks")
+        cpos, csize = np.asarray(c.pos, np.int64), np.asarray(c.size, np.int64)
+        lo = cpos.min(axis=0) - 1
+        hi = (cpos + np.concatenate([csize, np.ones((k, 1), np.int64)], axis=1)).max(axis=0) + 1
+        near = np.nonzero(((hi_all > lo) & (lo_all < hi)).all(axis=1))[0]
+        if c.replaces >= 0:
+            near = near[near != c.replaces]
+        sub_keys = [f"b{i}" for i in near] + [f"c{j}" for j in range(k)]
+        try:
+            sub = make_layout(
+                sub_keys,
+                np.concatenate([layout.pos[near], cpos]),
+                np.concatenate([layout.size[near], csize]),
+                np.concatenate([layout.mass[near], c.mass]),
+                source=layout.source,
+            )
+        except LayoutError as exc:
+            raise LayoutError(layout.source, f"candidate {ci} ({c.note or c.kind}): {exc.message}") from None
+        sm = compile_layout(sub, params)
+        scb, scoef, skind = _columns(sm)
+        ns = sub.n
+        # global index of each sub brick; -1 for the baseplate
+        gidx = np.concatenate([near, start + np.arange(k), [-1]])
+        scb = np.where(scb >= ns, ns, scb)
+        touches = (scb >= len(near)) & (scb < ns)
+        keep = touches.any(axis=1)
+        cols_b.append(gidx[scb[keep]])
+        cols_c.append(scoef[keep])
+        cols_k.append(skind[keep])
+        masses.append(np.asarray(c.mass, np.float64))
+        unit.append(np.full(k, start))
+        unit_bricks.append(start + np.arange(k))
+        unit_index.append(start)
+        start += k
+    n = start
+    col_brick = np.concatenate(cols_b).astype(np.int64)
+    col_brick = np.where(col_brick < 0, n, col_brick).astype(np.int32)
+    col_coef = np.concatenate(cols_c)
+    col_kind = np.concatenate(cols_k).astype(np.int8)
+    m = len(col_kind)
+    normal = np.nonzero(col_kind == NORMAL)[0]
+    owner = col_brick[normal, 0]
+    order = np.argsort(owner, kind="stable")
+    normal, owner = normal[order], owner[order]
+    counts = np.bincount(owner, minlength=n)
+    P = max(int(counts.max()) if counts.size else 1, 1)
+    slot = np.arange(len(owner)) - np.repeat(np.cumsum(counts) - counts, counts)
+    group = np.full((n, P), m, np.int32)
+    group[owner, slot] = normal
+    prob = SoftProblem(
+        col_brick=col_brick,
+        col_coef=col_coef.astype(np.float64),
+        col_kind=col_kind,
+        col_mask=np.ones(m, bool),
+        group=group,
+        mass=np.concatenate(masses),
+        brick_mask=np.ones(n, bool),
+        unit=np.concatenate(unit).astype(np.int32),
+    )
+    return SoftLayout(
+        base=layout, candidates=tuple(candidates), problem=prob, params=params,
+        unit_bricks=unit_bricks, unit_index=np.asarray(unit_index, np.int64),
+    )
+
+
+def soft_problem(layout: Layout, params: Params = Params()) -> SoftProblem:
+    """The :class:`SoftProblem` of a plain layout (every brick its own unit)."""
+    return compile_soft(layout, (), params).problem
+
+
+def pad_soft(prob: SoftProblem, n_pad: int | None = None, m_pad: int | None = None,
+             p_pad: int | None = None) -> SoftProblem:
+    """Pad to (n_pad bricks, m_pad columns, p_pad points per group); default
+    the bucket ladder of :func:`model.bucket_size`, so similar sizes share a
+    compiled solver. Padding bricks have no columns and no mass; padding
+    columns are inert (zero wrench, masked)."""
+    n, m = prob.mass.shape[0], prob.col_kind.shape[0]
+    P = prob.group.shape[1]
+    n_pad = bucket_size(n) if n_pad is None else n_pad
+    m_pad = bucket_size(m, base=64) if m_pad is None else m_pad
+    p_pad = bucket_size(P, base=4) if p_pad is None else p_pad
+    if n_pad < n or m_pad < m or p_pad < P:
+        raise ValueError(f"cannot pad (n={n}, m={m}, P={P}) to ({n_pad}, {m_pad}, {p_pad})")
+    dm, dn = m_pad - m, n_pad - n
+    cb = np.where(np.asarray(prob.col_brick) >= n, n_pad, prob.col_brick)
+    cb = np.concatenate([cb, np.full((dm, 2), n_pad)]).astype(np.int32)
+    grp = np.full((n_pad, p_pad), m_pad, np.int32)
+    g = np.asarray(prob.group)
+    grp[:n, :P] = np.where(g >= m, m_pad, g)
+    return SoftProblem(
+        col_brick=cb,
+        col_coef=np.concatenate([prob.col_coef, np.zeros((dm, 2, 6))]),
+        col_kind=np.concatenate([prob.col_kind, np.full(dm, KNOB, np.int8)]),
+        col_mask=np.concatenate([prob.col_mask, np.zeros(dm, bool)]),
+        group=grp,
+        mass=np.concatenate([prob.mass, np.zeros(dn)]),
+        brick_mask=np.concatenate([prob.brick_mask, np.zeros(dn, bool)]),
+        unit=np.concatenate([prob.unit, np.arange(n, n_pad)]).astype(np.int32),
+    )
+
+
+def stack_soft(problems: Sequence[SoftProblem]) -> SoftProblem:
+    """Stack equally padded problems along a new leading (batch) axis."""
+    return SoftProblem(*[np.stack(a) for a in zip(*problems)])
