@@ -3,6 +3,7 @@
 ``stablelego analyze FILE... [--library L] [--solver jax|exact] [--json] [--png P]``
 ``stablelego generate MESH... --out DIR [--grid 20] [--up auto|z|y|x] [--bricks SET] ...``
 ``stablelego export LAYOUT [--ldr OUT] [--json OUT] [--txt OUT]``
+``stablelego repair IN --out OUT [--region bbox|shape|any] [--max-add K] [--allow-remove] [--png P]``
 """
 from __future__ import annotations
 
@@ -317,6 +318,10 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--step", choices=["layer", "brick", "none"], default="layer",
                    help="building steps in the .ldr (default: one per layer)")
     e.set_defaults(func=cmd_export)
+
+    from .repair_cli import add_parser as add_repair_parser
+
+    add_repair_parser(sub)  # stablelego repair IN --out OUT ... (see repair_cli.py)
     return p
 
 
