@@ -112,7 +112,9 @@ def plan_bytes(key: tuple, m_pad: int) -> int:
     matrix blocks, their factors and the per-column assembly buffers."""
     L, B = (1, key[1]) if key[0] == "dense" else key[1:]
     k6 = 6 * B
-    return 8 * (6 * L * k6 * k6 + 4 * L * B * k6 + 300 * m_pad)
+    # blocks, factors and work copies; per-layer products; the per-column 12 x 12
+    # outer products, their scatter indices and the weighted copy of each assembly
+    return 8 * (6 * L * k6 * k6 + 4 * L * B * k6) + m_pad * 144 * (8 + 4 + 8) + 8 * 40 * m_pad
 
 
 def batch_sizes(per_layout: int, batch: int, n_dev: int, mem_budget: float = 2e9,

@@ -198,31 +198,19 @@ def cmd_export(args) -> int:
 
 
 def cmd_score(args) -> int:
-    import inspect
-
     from .batch import score_files
 
     if args.batch < 1:
         print("error: --batch must be >= 1", file=sys.stderr)
         return 2
-    extra = {}
-    if args.method != "ours":
-        # TODO(score --method): batch.score_files has no ``method`` parameter yet; once it
-        # has one (exact branch: baselines.analyze_baseline instead of solve_exact +
-        # _finish) it is passed on here and the baselines work with no change to this file.
-        if "method" not in inspect.signature(score_files).parameters:
-            print(f"error: score --method {args.method} is not supported yet (analyze --method works)",
-                  file=sys.stderr)
-            return 2
-        if _solver_for(args) != "exact":
-            print(f"error: --method {args.method} runs on the exact solver only (--solver exact)", file=sys.stderr)
-            return 2
-        extra["method"] = args.method
+    if args.method != "ours" and _solver_for(args) != "exact":
+        print(f"error: --method {args.method} runs on the exact solver only (--solver exact)", file=sys.stderr)
+        return 2
     try:
         st = score_files(
             args.inputs, args.out, solver=_solver_for(args), batch=args.batch, devices=args.devices,
             write_scores=args.write_scores, library=args.library, progress=not args.quiet,
-            exact_method=args.exact_method, **extra,
+            exact_method=args.exact_method, method=args.method,
         )
     except (ValueError, OSError) as exc:
         print(f"error: {exc}", file=sys.stderr)
