@@ -101,11 +101,13 @@ jax.config.update("jax_enable_x64", True)
 __all__ = [
     "LossOptions",
     "SoftSolution",
+    "SoftReport",
     "solve_soft",
     "brick_loss",
     "stability_loss",
     "soft_scores",
     "fail_prob",
+    "soft_report",
 ]
 
 
@@ -385,20 +387,6 @@ def _factor(ctx: _Ctx, pc: _Pieces, transpose: bool = False) -> _Lin:
     return _Lin(pc=pc, lu=lu, piv=piv, transpose=transpose)
 
 
-def _matvec(ctx: _Ctx, pc: _Pieces, d, transpose: bool = False):
-    """J d (or J^T d) from the pieces (for tests and checks)."""
-    f, g = _fg(pc, transpose)
-    dS, dD, dt = d
-    n = dt.shape[0]
-    left, right = (ctx.coef, ctx.coef_t) if transpose else (ctx.coef_t, ctx.coef)
-    yv = _apply_t(right, ctx.cb, pc.ddpsi * _apply(left, ctx.cb, _phi(d, ctx), n))
-    tt = pc.h3 + _owner_sum(ctx, jnp.where(ctx.normal, pc.h2o, 0.0), n)
-    jS = pc.hS * dS + jnp.where(ctx.real, yv, 0.0)
-    jD = pc.hD * dD - jnp.where(ctx.pair, yv, 0.0) + jnp.where(ctx.normal, f * _ext(dt)[ctx.owner], 0.0)
-    jt = _owner_sum(ctx, jnp.where(ctx.normal, g * dD, 0.0), n) + tt * dt
-    return jS, jD, jt
-
-
 def _solve(ctx: _Ctx, lin: _Lin, r):
     """Solve J d = r (J^T d = r for a transposed factorisation), r = (r_S, r_D, r_t).
 
@@ -513,26 +501,6 @@ def _ipm(ctx: _Ctx, opts: LossOptions):
         dshat = (dx[1], dx[0], -d2, dx[2])
         ds = [_msk(dv - rv, o) for dv, rv, o in zip(dshat, rp[:4], ons[:4])]
         dz = [_msk(zcomp(k, ds[k]), ons[k]) for k in range(4)]
-        # force parts: an active side's dual from its dual equation (given the
-        # new residual prices p = dpsi - y), its slack step from complementarity
-        atp = _apply_t(ctx.coef, ctx.cb, dpsi - y)
-        kc = jnp.where(ctx.knob, opts.knob_cost, 0.0)
-        act = [h[k] > 1.0 for k in range(4)]
-        on1 = act[1] & ctx.real
-        ec = _compliance(ctx, opts)
-        dz1 = atp + kc + ec * (x[0] + dx[0]) - z[1]  # S row: A^T p + gamma + e S - z_S = 0
-        dz[1] = jnp.where(on1, dz1, dz[1])
-        ds[1] = jnp.where(on1, comp(1, dz1), ds[1])
-        o = ctx.o0
-        base = -atp + jnp.where(ctx.normal, opts.params.beta, 0.0) + kc + ec * (x[1] + dx[1])  # D row: base - z0 + o z2 = 0
-        on0 = act[0] & ctx.pair & ~(act[2] & ctx.normal)
-        dz0 = base + o * (z[2] + dz[2]) - z[0]
-        dz[0] = jnp.where(on0, dz0, dz[0])
-        ds[0] = jnp.where(on0, comp(0, dz0), ds[0])
-        on2 = act[2] & ctx.normal & ~act[0] & (o > 0.5)
-        dz2 = (z[0] + dz[0] - base) / jnp.where(on2, o, 1.0) - z[2]
-        dz[2] = jnp.where(on2, dz2, dz[2])
-        ds[2] = jnp.where(on2, comp(2, dz2), ds[2])
         ds = tuple(_msk(v, on) for v, on in zip(ds, ons[:4])) + (dsa, dsb)
         dz = tuple(_msk(v, on) for v, on in zip(dz, ons[:4])) + (dza, dzb)
         step = jnp.asarray(1.0, dtype)
@@ -569,19 +537,24 @@ def _ipm(ctx: _Ctx, opts: LossOptions):
         # one factorisation per iteration (the matrix does not depend on the target)
         _, _, _, _, _, pc = pieces(x, r, s, z, wts)
         lin = _factor(ctx, pc)
-        # predictor (affine scaling, target 0) ...
+        # predictor (affine scaling, target 0), then corrector (centring
+        # towards tau plus the second-order term; pure centring once the target
+        # is the final mu): one traced direction in a scan of length 2
+        def phase(target, _):
+            out = direction(x, r, s, z, target, lin)
+            _, _, ds_a, dz_a, st_a = out
+            st_a = jnp.minimum(st_a, 1.0)
+            mu_a = mean_gap(_axpy(st_a, ds_a, s), _axpy(st_a, dz_a, z))
+            sigma = jnp.clip((mu_a / mu) ** 3, 0.0, 1.0)
+            tau = jnp.maximum(opts.mu, sigma * mu)
+            final = tau <= opts.mu
+            nxt = tuple(tau * w - jnp.where(final, 0.0, _msk(dsv * dzv, o))
+                        for w, dsv, dzv, o in zip(wts, ds_a, dz_a, ons))
+            return nxt, out
+
         zero = tuple(jnp.zeros_like(v) for v in s)
-        _, _, ds_a, dz_a, st_a = direction(x, r, s, z, zero, lin)
-        st_a = jnp.minimum(st_a, 1.0)
-        mu_a = mean_gap(_axpy(st_a, ds_a, s), _axpy(st_a, dz_a, z))
-        sigma = jnp.clip((mu_a / mu) ** 3, 0.0, 1.0)
-        tau = jnp.maximum(opts.mu, sigma * mu)
-        # ... and corrector (centring towards tau plus the second-order term;
-        # pure centring once the target is the final mu)
-        final = tau <= opts.mu
-        target = tuple(tau * w - jnp.where(final, 0.0, _msk(dsv * dzv, o))
-                       for w, dsv, dzv, o in zip(wts, ds_a, dz_a, ons))
-        dx, dr, ds, dz, step = direction(x, r, s, z, target, lin)
+        _, outs = jax.lax.scan(phase, zero, None, length=2)
+        dx, dr, ds, dz, step = jax.tree_util.tree_map(lambda a: a[1], outs)
         step = jnp.minimum(1.0, 0.99 * step)
         return _axpy(step, dx, x), r + step * dr, _axpy(step, ds, s), _axpy(step, dz, z)
 
@@ -744,3 +717,34 @@ def soft_scores(weights, loads, prob: SoftProblem, opts: LossOptions = LossOptio
     score = jnp.where(bad | (dm >= 1.0), 1.0, dm)
     present = ctx.om > 0
     return jnp.where(present, score, 0.0), dm * opts.params.T, bad & present
+
+
+class SoftReport(NamedTuple):
+    """Everything per brick from one solve (see :func:`soft_report`)."""
+
+    brick_loss: jnp.ndarray  # (n,) as brick_loss
+    fail_prob: jnp.ndarray  # (n,) as fail_prob
+    scores: jnp.ndarray  # (n,) as soft_scores
+    max_drag: jnp.ndarray  # (n,) N, as soft_scores
+    residual_bad: jnp.ndarray  # (n,) bool
+    converged: jnp.ndarray  # () bool
+
+
+def soft_report(weights, loads, prob: SoftProblem, temperature=None, opts: LossOptions = LossOptions()) -> SoftReport:
+    """:func:`brick_loss`, :func:`fail_prob` and :func:`soft_scores` from one
+    solve; ``temperature`` may be a traced value (it does not enter the solve)."""
+    tau = opts.temperature if temperature is None else temperature
+    ctx, x, aux = _terms(weights, loads, prob, opts)
+    phi = _phi(x, ctx)
+    rho = _rho(ctx, phi)
+    s = opts.residual_smoothing
+    resid = (ctx.cost * (jnp.sqrt(rho * rho + s * s) - s)).sum(axis=1)
+    bl = ctx.om * (tau * jax.nn.softplus((x[2] - 1.0) / tau) + resid)
+    bad = _residual_bad(rho, opts.params)
+    present = ctx.om > 0
+    fp = jnp.where(present, jnp.where(bad, 1.0, jax.nn.sigmoid((x[2] - 1.0) / tau)), 0.0)
+    d = jnp.where(ctx.normal, jnp.maximum(-phi, 0.0) * ctx.o0, 0.0)
+    dm = _ext(d)[ctx.group].max(axis=1)
+    score = jnp.where(present, jnp.where(bad | (dm >= 1.0), 1.0, dm), 0.0)
+    return SoftReport(brick_loss=bl, fail_prob=fp, scores=score, max_drag=dm * opts.params.T,
+                      residual_bad=bad & present, converged=jax.lax.stop_gradient(aux[2]) <= opts.tol)

@@ -31,6 +31,7 @@ order, and every brick after it, until the layout stands).
 """
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import functools
 import time
@@ -58,6 +59,7 @@ __all__ = [
 ]
 
 REGIONS = ("bbox", "shape", "any")
+_PER_TARGET = 6  # support variants per supported brick (lowest pillars, widest contact first)
 
 # support and bridge footprints (sx, sy): real bricks of paper Table I
 _SUPPORT = ((1, 1), (1, 2), (2, 1), (2, 2), (1, 4), (4, 1), (2, 4), (4, 2))
@@ -235,6 +237,38 @@ def _footprint(layout: Layout, i: int):
     return x, y, z, sx, sy
 
 
+def _owner_grid(layout: Layout) -> dict:
+    cells, owner = cells_of(layout.pos, layout.size)
+    return dict(zip(map(tuple, cells.tolist()), owner.tolist()))
+
+
+def _carried(layout: Layout, owner: dict, b: int) -> list[int]:
+    """Overhanging bricks (a cell with nothing below) of b's structure: the
+    bricks joined to b through knob connections, excluding those below b's
+    layer; their weight reaches the ground through b's joints or next to
+    them."""
+    nbr: dict = {}
+    for (x, y, z), q in owner.items():
+        up = owner.get((x, y, z + 1))
+        if up is not None and up != q:
+            nbr.setdefault(q, set()).add(up)
+            nbr.setdefault(up, set()).add(q)
+    zb = int(layout.pos[b, 2])
+    seen, stack = {b}, [b]
+    while stack:
+        q = stack.pop()
+        for u in nbr.get(q, ()):
+            if u not in seen and int(layout.pos[u, 2]) >= zb:
+                seen.add(u)
+                stack.append(u)
+    out = []
+    for q in seen - {b}:
+        x, y, z, sx, sy = _footprint(layout, q)
+        if z > 0 and any((x + i, y + j, z - 1) not in owner for i in range(sx) for j in range(sy)):
+            out.append(q)
+    return out
+
+
 def propose(layout: Layout, analysis: Analysis, opts: RepairOptions, budget: int | None = None) -> list[Candidate]:
     """Candidate units around the weakest bricks of ``layout`` (see the module
     docstring), at most ``opts.max_candidates``, each of at most ``budget``
@@ -256,32 +290,49 @@ def propose(layout: Layout, analysis: Analysis, opts: RepairOptions, budget: int
 
     weak = _weak_order(analysis, opts.weak)
     grid_occ = space.occ
+    owner = _owner_grid(layout)
+
+    def supports_under(b, key, note):
+        """Supports under brick b: a brick in the layer below overlapping b,
+        carried down as a pillar of the same footprint to the baseplate or to
+        the first brick below."""
+        x, y, z, sx, sy = _footprint(layout, b)
+        if z == 0:
+            return
+        sups = []
+        for fx, fy in _SUPPORT:
+            for x0 in range(x - fx + 1, x + sx):
+                for y0 in range(y - fy + 1, y + sy):
+                    if not space.rect_free(x0, y0, z - 1, fx, fy):
+                        continue
+                    under = sum(1 for i in range(fx) for j in range(fy)
+                                if x <= x0 + i < x + sx and y <= y0 + j < y + sy)
+                    bricks = [(x0, y0, z - 1, fx, fy)]
+                    lev = z - 1
+                    ok = True
+                    while lev > 0 and not space.rect_any_occ(x0, y0, lev - 1, fx, fy):
+                        if not space.rect_free(x0, y0, lev - 1, fx, fy):
+                            ok = False
+                            break
+                        lev -= 1
+                        bricks.append((x0, y0, lev, fx, fy))
+                    if ok and len(bricks) <= budget:
+                        sups.append((len(bricks), -under, fx * fy, bricks))
+        for _, _, _, bricks in sorted(sups, key=lambda t: t[:3])[:_PER_TARGET]:
+            add(bricks, "support", note)
+
     for b in weak:
         x, y, z, sx, sy = _footprint(layout, b)
         key = layout.keys[b]
-        # supports: a brick under b, carried down as a pillar of the same footprint
-        if z > 0:
-            sups = []
-            for fx, fy in _SUPPORT:
-                for x0 in range(x - fx + 1, x + sx):
-                    for y0 in range(y - fy + 1, y + sy):
-                        if not space.rect_free(x0, y0, z - 1, fx, fy):
-                            continue
-                        under = sum(1 for i in range(fx) for j in range(fy)
-                                    if x <= x0 + i < x + sx and y <= y0 + j < y + sy)
-                        bricks = [(x0, y0, z - 1, fx, fy)]
-                        lev = z - 1
-                        ok = True
-                        while lev > 0 and not space.rect_any_occ(x0, y0, lev - 1, fx, fy):
-                            if not space.rect_free(x0, y0, lev - 1, fx, fy):
-                                ok = False
-                                break
-                            lev -= 1
-                            bricks.append((x0, y0, lev, fx, fy))
-                        if ok and len(bricks) <= budget:
-                            sups.append((len(bricks), -under, fx * fy, bricks))
-            for _, _, _, bricks in sorted(sups, key=lambda t: t[:3]):
-                add(bricks, "support", f"under brick {key!r}")
+        # supports under b itself, then under the overhanging bricks whose
+        # weight b carries (farthest first: they load b's joints the most)
+        supports_under(b, key, f"under brick {key!r}")
+        cx, cy = x + sx / 2.0, y + sy / 2.0
+        carried = _carried(layout, owner, b)
+        carried.sort(key=lambda q: -abs(layout.pos[q, 0] + layout.size[q, 0] / 2.0 - cx)
+                     - abs(layout.pos[q, 1] + layout.size[q, 1] / 2.0 - cy))
+        for q in carried[:4]:
+            supports_under(q, layout.keys[q], f"under brick {layout.keys[q]!r}, carried by weak brick {key!r}")
         # bridges: a brick in the layer above or below spanning b and a side neighbour
         nbrs = set()
         for i in range(sx):
@@ -324,6 +375,43 @@ def propose(layout: Layout, analysis: Analysis, opts: RepairOptions, budget: int
 # ranking by the gradient
 
 
+@contextlib.contextmanager
+def one_blas_thread():
+    """Run with one thread in SciPy's OpenBLAS (restored after): JAX's CPU
+    LAPACK calls go through it, and on a busy machine its spinning worker
+    threads make each small dense LU of the differentiable solver ~100x
+    slower (80 ms instead of 0.6 ms for 224 x 224 on a shared 2-core box)."""
+    lib = _openblas()
+    if lib is None:
+        yield
+        return
+    old = lib.scipy_openblas_get_num_threads()
+    lib.scipy_openblas_set_num_threads(1)
+    try:
+        yield
+    finally:
+        lib.scipy_openblas_set_num_threads(old)
+
+
+@functools.lru_cache(maxsize=1)
+def _openblas():
+    import ctypes
+    import glob
+    import os
+
+    import scipy
+
+    pattern = os.path.join(os.path.dirname(os.path.dirname(scipy.__file__)), "scipy.libs", "libscipy_openblas*.so*")
+    for path in glob.glob(pattern):
+        try:
+            lib = ctypes.CDLL(path)
+        except OSError:
+            continue
+        if hasattr(lib, "scipy_openblas_set_num_threads") and hasattr(lib, "scipy_openblas_get_num_threads"):
+            return lib
+    return None
+
+
 @functools.lru_cache(maxsize=None)
 def _grad_fn(opts: LossOptions):
     return jax.jit(jax.value_and_grad(lambda w, p: stability_loss(w, None, p, opts=opts)))
@@ -336,11 +424,14 @@ def rank(layout: Layout, cands: Sequence[Candidate], opts: RepairOptions,
     a replacement's is that minus the replaced brick's. Returns (scores, loss)."""
     lo = loss_opts or LossOptions(temperature=opts.temperature, params=opts.params)
     soft = compile_soft(layout, cands, opts.params)
-    prob = pad_soft(soft.problem)
+    n, m, P = soft.n, soft.problem.col_kind.shape[0], soft.problem.group.shape[1]
+    up = lambda v, q: -(-v // q) * q  # noqa: E731  a coarse shape ladder: fewer recompiles
+    prob = pad_soft(soft.problem, up(n, 32), up(m, 512), up(P, 8))
     w = np.zeros(prob.mass.shape[0])
     w[: soft.n] = soft.weights()
-    val, g = _grad_fn(lo)(w, prob)
-    g = np.asarray(g)
+    with one_blas_thread():
+        val, g = _grad_fn(lo)(w, prob)
+        g = np.asarray(g)
     scores = g[soft.unit_index].copy()
     for k, c in enumerate(cands):
         if c.replaces >= 0:

@@ -1,0 +1,199 @@
+"""Differentiable stability loss: exactness of w = 0 / w = 1, implicit gradients vs
+central finite differences, jit/vmap, and the zero-temperature limit (Eq. 10)."""
+import json
+import os
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from blas_threads import one_blas_thread  # noqa: F401  (module fixture: one BLAS thread)
+from conftest import EXAMPLES
+from stablelego_jax import load_layout
+from stablelego_jax.api import analyze_layout
+from stablelego_jax.loss import LossOptions, soft_report, stability_loss
+from stablelego_jax.soft import candidate_brick, compile_soft, pad_soft, soft_problem, stack_soft
+
+REF = os.path.join(EXAMPLES, "stablelego")
+LABELS = json.load(open(os.path.join(EXAMPLES, "labels_stablelego.json")))
+SHAPE = (32, 1024, 32)  # every problem of this module: one compile per function
+OPTS = LossOptions()
+
+
+def _pad(prob):
+    return pad_soft(prob, *SHAPE)
+
+
+def _weights(soft, present=()):
+    w = np.zeros(SHAPE[0])
+    w[: soft.n] = soft.weights(present)
+    return w
+
+
+def _loss_fn(w, loads, prob):
+    return stability_loss(w, loads, prob, opts=OPTS)
+
+
+# three compiled functions for the whole module (compiling the solver dominates its time)
+_report = jax.jit(lambda w, loads, prob, tau: soft_report(w, loads, prob, tau, opts=OPTS))
+_grad = jax.jit(jax.value_and_grad(_loss_fn, argnums=(0, 1)))
+_vgrad = jax.jit(jax.vmap(jax.grad(_loss_fn, argnums=(0, 1)), in_axes=(0, None, 0)))
+ZERO = np.zeros(SHAPE[0])
+TAU = OPTS.temperature
+
+
+def _loss(w, loads, prob):
+    return float(np.sum(_report(w, loads, prob, TAU).brick_loss))
+
+
+def _scores(w, loads, prob):
+    r = _report(w, ZERO if loads is None else loads, prob, TAU)
+    return (r.scores, r.max_drag), r.converged
+
+
+def _brick_loss(w, loads, prob):
+    return _report(w, ZERO if loads is None else loads, prob, TAU).brick_loss
+
+
+def _stair():
+    lay = load_layout(os.path.join(REF, "stair_20.json"))
+    cands = [candidate_brick([(4, 21, 0, 1, 2)]),  # the paper's repair
+             candidate_brick([(12, 21, 0, 2, 2), (12, 21, 1, 2, 2), (12, 21, 2, 2, 2), (12, 21, 3, 2, 2),
+                              (12, 21, 4, 2, 2)]),  # a pillar under brick '6'
+             candidate_brick([(4, 19, 1, 2, 2)])]  # floating beside brick '2'
+    return lay, compile_soft(lay, cands)
+
+
+def test_weight_zero_is_exactly_absent():
+    lay, soft = _stair()
+    plain = _pad(soft_problem(lay))
+    w0 = np.zeros(SHAPE[0])
+    w0[: lay.n] = 1.0
+    (s0, d0), c0 = _scores(w0, None, plain)
+    (s1, d1), c1 = _scores(_weights(soft), None, _pad(soft.problem))
+    assert bool(c0) and bool(c1)
+    # the same solution to the solver's accuracy (the interior-point path differs)
+    np.testing.assert_allclose(d1[: lay.n], d0[: lay.n], atol=1e-6)
+    l0 = _brick_loss(w0, None, plain)
+    l1 = _brick_loss(_weights(soft), None, _pad(soft.problem))
+    np.testing.assert_allclose(l1[: lay.n], l0[: lay.n], rtol=1e-5, atol=1e-9)
+    assert (np.asarray(l1)[lay.n:] == 0).all() and (np.asarray(s1)[lay.n:] == 0).all()
+    # exactly: at weight 0 no candidate force enters a base brick's residual or drag maximum
+    from stablelego_jax import loss as L
+
+    prob = _pad(soft.problem)
+    ctx = L._context(_weights(soft), None, prob, OPTS.params)
+    cand_col = np.isin(np.asarray(prob.col_brick), np.arange(lay.n, soft.n)).any(axis=1)
+    phi = np.random.default_rng(0).normal(size=SHAPE[1])
+    phi2 = np.where(cand_col, phi + 10.0, phi)
+    r1, r2 = np.asarray(L._rho(ctx, jnp.asarray(phi))), np.asarray(L._rho(ctx, jnp.asarray(phi2)))
+    np.testing.assert_array_equal(r1[: lay.n], r2[: lay.n])
+    base_group = np.asarray(ctx.owner)[cand_col] < lay.n  # candidate contacts under base bricks
+    assert base_group.any() and (np.asarray(ctx.o0)[cand_col][base_group] == 0).all()
+    assert (np.asarray(ctx.wcol)[cand_col] == 0).all() and (np.asarray(ctx.om)[lay.n:] == 0).all()
+
+
+def test_weight_one_is_present():
+    lay, soft = _stair()
+    full = soft.layout_with([0])
+    (s_full, d_full), _ = _scores(_weights(compile_soft(full, [])), None, _pad(soft_problem(full)))
+    (s_soft, d_soft), conv = _scores(_weights(soft, [0]), None, _pad(soft.problem))
+    assert bool(conv)
+    idx = list(range(lay.n)) + [int(soft.unit_bricks[0][0])]
+    np.testing.assert_allclose(np.asarray(d_soft)[idx], np.asarray(d_full)[: full.n], atol=2e-4)
+    # with the paper's repair brick present the stair stands, without it brick '2' fails
+    assert (np.asarray(s_soft)[idx] < 1).all()
+    (s_abs, _), _ = _scores(_weights(soft), None, _pad(soft.problem))
+    assert np.asarray(s_abs)[1] == 1.0
+
+
+def _fd_check(f, g, x0, idx, h):
+    """Central differences of scalar f at x0 along the unit vectors idx vs g (the
+    implicit gradient); components smaller than 1e-3 of the largest are
+    compared in absolute terms (their relative error is rounding noise)."""
+    fds = []
+    for i in idx:
+        xp, xm = x0.copy(), x0.copy()
+        xp[i] += h
+        xm[i] -= h
+        fds.append((float(f(xp)) - float(f(xm))) / (2 * h))
+    fds = np.array(fds)
+    gi = np.asarray(g)[idx]
+    scale = np.abs(fds).max()
+    big = np.abs(fds) > 1e-3 * scale
+    rel = np.abs(gi - fds)[big] / np.abs(fds)[big]
+    assert rel.max() < 0.05, (idx, gi, fds)
+    assert np.abs(gi - fds)[~big].max(initial=0.0) < 1e-3 * scale
+    return rel
+
+
+def test_gradients_match_central_finite_differences():
+    lay, soft = _stair()
+    prob = _pad(soft.problem)
+    w = _weights(soft)
+    w[soft.n_base:soft.n] = 0.4  # candidates half faded in: a smooth point inside (0, 1)
+    w[[5, 10]] = [0.8, 0.9]
+    loads = np.zeros(SHAPE[0])
+    loads[[5, 12]] = [0.01, 0.02]
+    _, (gw, gl) = _grad(w, loads, prob)
+    rels = [_fd_check(lambda v: _loss(v, loads, prob), gw, w, [5, 10, 20, 21, 26], 1e-4),
+            _fd_check(lambda v: _loss(w, v, prob), gl, loads, [1, 3, 5, 12, 19], 1e-4)]
+    assert max(r.max() for r in rels) < 0.05
+
+
+def test_gradients_on_the_loaded_lever():
+    lay = load_layout(os.path.join(REF, "stick_heavy.json"))
+    prob = _pad(soft_problem(lay))
+    w = np.zeros(SHAPE[0])
+    w[: lay.n] = 1.0
+    w[[4, 8]] = 0.7
+    loads = np.zeros(SHAPE[0])
+    loads[[11, 13]] = 0.05
+    _, (gw, gl) = _grad(w, loads, prob)
+    _fd_check(lambda v: _loss(w, v, prob), gl, loads, [1, 6, 11, 13], 1e-4)
+    _fd_check(lambda v: _loss(v, loads, prob), gw, w, [4, 8], 1e-4)
+    # physically: more load on the lever's tip (brick '14' on top of '12', '13') makes it worse
+    assert float(gl[13]) > 0
+
+
+def test_jit_vmap_grad():
+    lay, soft = _stair()
+    prob = _pad(soft.problem)
+    lever = load_layout(os.path.join(REF, "stick_heavy.json"))
+    lprob = _pad(soft_problem(lever))
+    # a batch of weights and layouts (stacked problems): vmap of grad == one by one
+    w = np.zeros((3, SHAPE[0]))
+    w[0], w[1] = _weights(soft), _weights(soft, [0])
+    w[2, : lever.n] = 1.0
+    gb, _ = _vgrad(w, ZERO, stack_soft([prob, prob, lprob]))
+    for i, p in enumerate([prob, prob, lprob]):
+        val, (g, _) = _grad(w[i], ZERO, p)
+        np.testing.assert_allclose(gb[i], g, atol=1e-5 * np.abs(g).max())  # batched LU rounding only
+        np.testing.assert_allclose(float(val), _loss(w[i], ZERO, p), rtol=1e-6)
+    assert _loss(w[1], ZERO, prob) < _loss(w[0], ZERO, prob)  # the repair brick lowers the loss
+    # at weight 0 the paper's repair brick and the pillar help, the floating brick does not
+    i_fix, i_pillar, i_float = soft.unit_index
+    assert gb[0][i_fix] < 0 and gb[0][i_pillar] < 0 and gb[0][i_float] > 0
+
+
+@pytest.mark.parametrize("name", sorted(k for k in LABELS if not k.startswith("_")))
+def test_zero_temperature_recovers_eq10(name):
+    lay = load_layout(os.path.join(REF, name))
+    prob = _pad(soft_problem(lay))
+    w = np.zeros(SHAPE[0])
+    w[: lay.n] = 1.0
+    (s, drag), conv = _scores(w, None, prob)
+    assert bool(conv)
+    ex = analyze_layout(lay, solver="exact")
+    exd = np.array([ex.max_drag[k] for k in lay.keys])
+    np.testing.assert_allclose(np.asarray(drag)[: lay.n], exd, atol=2e-3)
+    assert bool((np.asarray(s)[: lay.n] < 1).all()) == LABELS[name]["stable"] == ex.stable
+    # the per-brick loss tends to max(D/T - 1, 0) (+ residual): positive exactly where Eq. 10 says 1
+    r = _report(w, ZERO, prob, 1e-5)
+    lb, p = np.asarray(r.brick_loss)[: lay.n], np.asarray(r.fail_prob)[: lay.n]
+    hinge = np.maximum(exd / ex.model.params.T - 1.0, 0.0)
+    np.testing.assert_allclose(lb, hinge, atol=3e-4)
+    failing = np.array([ex.scores[k] >= 1.0 for k in lay.keys])
+    assert (lb[failing] > 1e-4).all() and (lb[~failing] < 1e-4).all()
+    np.testing.assert_array_equal(p > 0.5, failing)

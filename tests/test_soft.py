@@ -1,0 +1,145 @@
+"""Soft layouts: candidates compiled against a layout into one fixed-shape problem."""
+import os
+
+import numpy as np
+import pytest
+
+from conftest import EXAMPLES
+from stablelego_jax import load_layout, make_layout
+from stablelego_jax.layout import LayoutError
+from stablelego_jax.model import KNOB, NORMAL, compile_layout
+from stablelego_jax.soft import (
+    apply_candidates,
+    candidate_brick,
+    compile_soft,
+    fresh_keys,
+    pad_soft,
+    soft_problem,
+    stack_soft,
+)
+
+STAIR20 = os.path.join(EXAMPLES, "stablelego", "stair_20.json")
+
+
+def _signature(cb, coef, kind, keys_of):
+    """Columns as a sorted list of (kind, brick names, rounded wrench) tuples."""
+    out = []
+    for j in range(len(kind)):
+        names = tuple(keys_of(int(b)) for b in cb[j])
+        out.append((int(kind[j]), names, tuple(np.round(coef[j].ravel(), 12))))
+    return sorted(out)
+
+
+def test_plain_layout_is_compile_layout():
+    lay = load_layout(STAIR20)
+    model = compile_layout(lay)
+    prob = soft_problem(lay)
+    assert prob.col_kind.shape[0] == model.m
+    np.testing.assert_array_equal(prob.col_brick, model.col_brick)
+    np.testing.assert_allclose(prob.col_coef, model.col_coef)
+    np.testing.assert_allclose(prob.mass, lay.mass)
+    np.testing.assert_array_equal(prob.unit, np.arange(lay.n))
+
+
+def test_candidate_columns_equal_those_of_the_layout_with_it():
+    lay = load_layout(STAIR20)
+    cands = [candidate_brick([(4, 21, 0, 1, 2)]), candidate_brick([(6, 21, 0, 2, 2), (6, 21, 1, 2, 2)]),
+             candidate_brick([(0, 21, 1, 2, 2)])]
+    soft = compile_soft(lay, cands)
+    p = soft.problem
+    assert soft.n == lay.n + 4
+    np.testing.assert_array_equal(soft.unit_index, [20, 21, 23])
+    np.testing.assert_array_equal(p.unit[20:], [20, 21, 21, 23])  # a pillar is one unit
+    for k in range(len(cands)):
+        full = soft.layout_with([k])
+        m = compile_layout(full)
+        bricks = list(range(lay.n)) + list(soft.unit_bricks[k])
+        keep = np.isin(p.col_brick, bricks + [soft.n]).all(axis=1)
+        names = {i: full.keys[i] for i in range(full.n)}
+        glob = {g: full.keys[i] for i, g in enumerate(bricks)}
+        mine = _signature(p.col_brick[keep], p.col_coef[keep], p.col_kind[keep],
+                          lambda b: glob.get(b, "plate"))
+        ref = _signature(m.col_brick[: m.m], m.col_coef[: m.m], m.col_kind[: m.m],
+                         lambda b: names.get(b, "plate"))
+        assert mine == ref
+    # every NORMAL column is in its upper brick's group, once
+    normal = np.nonzero(p.col_kind == NORMAL)[0]
+    grouped = p.group[p.group < len(p.col_kind)]
+    assert sorted(grouped.tolist()) == normal.tolist()
+    for b in range(soft.n):
+        g = p.group[b][p.group[b] < len(p.col_kind)]
+        assert (p.col_brick[g, 0] == b).all()
+
+
+def test_candidates_may_overlap_each_other_but_not_the_layout():
+    lay = load_layout(STAIR20)
+    a = candidate_brick([(4, 21, 0, 1, 2)])
+    b = candidate_brick([(4, 21, 0, 2, 2)])  # overlaps a: alternatives
+    soft = compile_soft(lay, [a, b])
+    # no column joins two candidates
+    cand = np.arange(lay.n, soft.n)
+    both = np.isin(soft.problem.col_brick, cand).all(axis=1)
+    assert not both.any()
+    with pytest.raises(LayoutError, match="stair_20.json.*candidate 0.*overlaps"):
+        compile_soft(lay, [candidate_brick([(2, 21, 1, 1, 2)])])  # inside brick '2'
+
+
+def test_replacement_candidate_is_compiled_without_the_replaced_brick():
+    lay = load_layout(STAIR20)
+    # brick '2' (2x4 along x at (2,21,1)) replaced by a 2x6 reaching back over brick '1'
+    c = candidate_brick([(0, 21, 1, 6, 2)], kind="replace", replaces=1)
+    soft = compile_soft(lay, [c])
+    new = soft.unit_bricks[0][0]
+    cb = soft.problem.col_brick
+    assert not ((cb == new).any(axis=1) & (cb == 1).any(axis=1)).any()
+    w = soft.weights([0])
+    assert w[1] == 0.0 and w[new] == 1.0
+    full = soft.layout_with([0])
+    assert "2" not in full.keys and full.n == lay.n
+
+
+def test_weights_and_layout_with_keep_every_original_brick():
+    lay = load_layout(STAIR20)
+    soft = compile_soft(lay, [candidate_brick([(4, 21, 0, 1, 2)]), candidate_brick([(0, 21, 1, 2, 2)])])
+    w = soft.weights()
+    assert (w[: lay.n] == 1).all() and (w[lay.n:] == 0).all()
+    assert soft.weights([1])[lay.n + 1] == 1.0
+    full = soft.layout_with([0, 1])
+    assert full.keys[: lay.n] == lay.keys
+    np.testing.assert_array_equal(full.pos[: lay.n], lay.pos)
+    np.testing.assert_array_equal(full.size[: lay.n], lay.size)
+    assert full.keys[lay.n:] == ("21", "22")
+    assert full.brick_id[lay.n:] == ("9", "12")  # 1x2 and 2x2 of the StableLego library
+
+
+def test_fresh_keys_and_apply_candidates():
+    assert fresh_keys(["1", "2", "b"], 2) == ["3", "4"]
+    assert fresh_keys(["x", "y"], 2) == ["3", "4"]
+    assert fresh_keys(["1", "3"], 1) == ["4"]
+    lay = make_layout(["a", "b"], [[0, 0, 0], [0, 0, 1]], [[2, 2], [2, 2]], [0.00115, 0.00115])
+    out = apply_candidates(lay, [candidate_brick([(2, 0, 0, 1, 2)])], ["new"])
+    assert out.keys == ("a", "b", "new")
+    with pytest.raises(LayoutError, match="overlaps"):
+        apply_candidates(lay, [candidate_brick([(1, 0, 1, 2, 2)])])
+    with pytest.raises(ValueError, match="Table I"):
+        candidate_brick([(0, 0, 0, 3, 3)])
+
+
+def test_pad_and_stack():
+    lay = load_layout(STAIR20)
+    soft = compile_soft(lay, [candidate_brick([(4, 21, 0, 1, 2)])])
+    p = soft.problem
+    q = pad_soft(p, 32, 1024, 32)
+    assert q.mass.shape == (32,) and q.col_kind.shape == (1024,) and q.group.shape == (32, 32)
+    assert not q.brick_mask[soft.n:].any() and not q.col_mask[p.col_kind.shape[0]:].any()
+    assert (q.col_kind[p.col_kind.shape[0]:] == KNOB).all()
+    assert (q.col_coef[p.col_kind.shape[0]:] == 0).all()
+    assert (q.col_brick[p.col_kind.shape[0]:] == 32).all()
+    assert (q.col_brick[: p.col_kind.shape[0]][p.col_brick == soft.n] == 32).all()  # baseplate moved to the new n
+    np.testing.assert_array_equal(q.unit[soft.n:], np.arange(soft.n, 32))
+    auto = pad_soft(p)
+    assert auto.mass.shape[0] >= soft.n and auto.col_kind.shape[0] >= p.col_kind.shape[0]
+    with pytest.raises(ValueError, match="cannot pad"):
+        pad_soft(p, 8, 1024, 32)
+    s = stack_soft([q, q])
+    assert s.col_coef.shape == (2, 1024, 2, 6)
