@@ -13,10 +13,12 @@ One repair step:
    (:mod:`stablelego_jax.soft`, candidates at weight 0) and takes the
    gradient of :func:`stablelego_jax.loss.stability_loss` with respect to
    their weights: one smooth solve and one adjoint solve for all of them;
-4. the ``verify`` best-ranked candidates (most negative gradient per added
-   brick) are checked with the exact solver; a stable one with the fewest
-   bricks is taken, else the one that lowers the exact overload most per
-   brick; repeat until the layout stands or ``max_add`` bricks are spent.
+4. ``verify`` candidates are checked with the exact solver: the best-ranked
+   (most negative gradient per added brick), then the best-ranked of each
+   unit size, smallest first; a stable one with the fewest bricks is taken,
+   else the one that lowers the exact overload most per brick (if none of
+   them lowers it, the next ``verify``, at most three rounds); repeat until
+   the layout stands or ``max_add`` bricks are spent.
 
 User bricks are never moved or deleted unless ``allow_remove`` (then only
 by a replacement), candidates never overlap the layout, and every new cell
@@ -445,21 +447,22 @@ def rank(layout: Layout, cands: Sequence[Candidate], opts: RepairOptions,
 
 def _verify_order(per_brick: np.ndarray, sizes) -> list[int]:
     """Order in which to verify candidates: those predicted to help (negative
-    gradient) first; among them, round-robin over unit sizes, smallest
-    first, each size's best-ranked first (the fewest bricks are wanted, the
-    gradient says which of each size helps most); then the rest by gradient."""
+    gradient) first: the best-ranked one overall, then round-robin over unit
+    sizes, smallest first, each size's best-ranked first (the fewest bricks
+    are wanted and the gradient says which of each size helps most); then
+    the rest by gradient."""
     sizes = np.asarray(sizes)
-    helps = [int(i) for i in np.argsort(per_brick, kind="stable") if per_brick[i] < 0.0]
-    groups = {k: [i for i in helps if sizes[i] == k] for k in sorted(set(sizes[helps].tolist()))}
-    out = []
+    ranked = [int(i) for i in np.argsort(per_brick, kind="stable")]
+    helps = [i for i in ranked if per_brick[i] < 0.0]
+    groups = {k: [i for i in helps[1:] if sizes[i] == k] for k in sorted(set(sizes[helps[1:]].tolist()))}
+    out = helps[:1]
     r = 0
     while len(out) < len(helps):
         for k in groups:
             if r < len(groups[k]):
                 out.append(groups[k][r])
         r += 1
-    rest = [int(i) for i in np.argsort(per_brick, kind="stable") if per_brick[i] >= 0.0]
-    return out + rest
+    return out + [i for i in ranked if per_brick[i] >= 0.0]
 
 
 def _choose(trials):

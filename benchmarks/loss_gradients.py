@@ -1,0 +1,152 @@
+"""The differentiable stability loss (issue 5): implicit gradients vs central
+finite differences, and agreement of its zero-temperature verdict with Eq. 10.
+
+Usage: python benchmarks/loss_gradients.py [--n-fd 12] [--n-verdict 60] [--out benchmarks/results/loss_gradients.json]
+
+* Gradients: on the paper's eight structures and on generated layouts
+  (``generators.procedural.random_family_layout``, at most 60 bricks), each
+  with random interior weights (a third of the bricks at weights in [0.3,
+  0.9], a smooth point inside (0, 1)) and random extra loads (0-50 g on a
+  third of the bricks); d loss / d weight and d loss / d load from the
+  custom VJP against central differences (step 1e-4) on 6 random
+  components each; components smaller than 1e-3 of the largest, or than
+  1e-8 (stable layouts have an exponentially small loss), are compared in
+  absolute terms (their relative error is rounding noise).
+* Verdicts: on generated layouts (at most 60 bricks), the Eq. 10 verdict of
+  the smooth solution (default barrier parameter) and the sign pattern of the
+  per-brick loss at temperature 1e-5 against HiGHS.
+
+All problems are padded to one shape, so each function compiles once.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import time
+
+for _v in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS"):
+    os.environ.setdefault(_v, "1")
+sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
+
+import jax  # noqa: E402
+import numpy as np  # noqa: E402
+
+from generators.procedural import random_family_layout  # noqa: E402
+from stablelego_jax.api import analyze_layout  # noqa: E402
+from stablelego_jax.io import atomic_write_text, load_layout  # noqa: E402
+from stablelego_jax.loss import LossOptions, soft_report, stability_loss  # noqa: E402
+from stablelego_jax.soft import pad_soft, soft_problem  # noqa: E402
+
+SHAPE = (64, 2048, 32)
+FLOOR = 1e-8  # gradient components below this (loss in units of T) are FD rounding noise
+OPTS = LossOptions()
+REF = os.path.join(os.path.dirname(__file__), "..", "examples", "stablelego")
+
+
+def _loss(w, loads, prob):
+    return stability_loss(w, loads, prob, opts=OPTS)
+
+
+LOSS = jax.jit(_loss)
+GRAD = jax.jit(jax.grad(_loss, argnums=(0, 1)))
+REPORT = jax.jit(lambda w, loads, prob, tau: soft_report(w, loads, prob, tau, opts=OPTS))
+
+
+def fits(lay) -> bool:
+    p = soft_problem(lay)
+    return lay.n <= SHAPE[0] and p.col_kind.shape[0] <= SHAPE[1] and p.group.shape[1] <= SHAPE[2]
+
+
+def fd_case(name, lay, rng):
+    prob = pad_soft(soft_problem(lay), *SHAPE)
+    n = lay.n
+    w = np.zeros(SHAPE[0])
+    w[:n] = 1.0
+    soft_idx = rng.choice(n, size=max(1, n // 3), replace=False)
+    w[soft_idx] = rng.uniform(0.3, 0.9, size=len(soft_idx))
+    loads = np.zeros(SHAPE[0])
+    li = rng.choice(n, size=max(1, n // 3), replace=False)
+    loads[li] = rng.uniform(0.0, 0.05, size=len(li))
+    gw, gl = (np.asarray(v) for v in GRAD(w, loads, prob))
+    out = {"name": name, "n_bricks": n}
+    for what, x, g, pool in (("weights", w, gw, soft_idx), ("loads", loads, gl, np.arange(n))):
+        idx = rng.choice(pool, size=min(6, len(pool)), replace=False)
+        fds = []
+        for i in idx:
+            xp, xm = x.copy(), x.copy()
+            xp[i] += 1e-4
+            xm[i] -= 1e-4
+            args_p = (xp, loads) if what == "weights" else (w, xp)
+            args_m = (xm, loads) if what == "weights" else (w, xm)
+            fds.append((float(LOSS(*args_p, prob)) - float(LOSS(*args_m, prob))) / 2e-4)
+        fds = np.array(fds)
+        gi = g[idx]
+        scale = max(np.abs(fds).max(), 1e-300)
+        big = np.abs(fds) > max(1e-3 * scale, FLOOR)
+        rel = np.abs(gi - fds)[big] / np.abs(fds)[big]
+        out[what] = {"components": int(len(idx)), "compared_relative": int(big.sum()),
+                     "max_rel_err": float(rel.max()) if big.any() else None,
+                     "max_abs_err_small": float(np.abs(gi - fds)[~big].max()) if (~big).any() else None,
+                     "scale": float(scale)}
+    return out
+
+
+def verdict_case(name, lay):
+    prob = pad_soft(soft_problem(lay), *SHAPE)
+    w = np.zeros(SHAPE[0])
+    w[: lay.n] = 1.0
+    r = REPORT(w, np.zeros(SHAPE[0]), prob, 1e-5)
+    ex = analyze_layout(lay, solver="exact")
+    failing = np.array([ex.scores[k] >= 1.0 for k in lay.keys])
+    s = np.asarray(r.scores)[: lay.n]
+    lb = np.asarray(r.brick_loss)[: lay.n]
+    drag = np.asarray(r.max_drag)[: lay.n]
+    exd = np.array([ex.max_drag[k] for k in lay.keys])
+    return {"name": name, "n_bricks": lay.n, "converged": bool(r.converged), "exact_stable": bool(ex.stable),
+            "soft_stable": bool((s < 1).all()), "failing_set_equal": bool(((s >= 1) == failing).all()),
+            "loss_positive_iff_failing": bool(((lb > 1e-4) == failing).all()),
+            "max_drag_err_N": float(np.abs(drag - exd).max())}
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--n-fd", type=int, default=12, help="generated layouts for the gradient check")
+    ap.add_argument("--n-verdict", type=int, default=60, help="generated layouts for the verdict check")
+    ap.add_argument("--out", default=os.path.join(os.path.dirname(__file__), "results", "loss_gradients.json"))
+    args = ap.parse_args()
+    rng = np.random.default_rng(0)
+    t0 = time.time()
+    refs = [(f, load_layout(os.path.join(REF, f))) for f in sorted(os.listdir(REF)) if f.endswith(".json")]
+    gen, seed = [], 0
+    while len(gen) < max(args.n_fd, args.n_verdict):
+        fam, lay = random_family_layout(seed)
+        seed += 1
+        if lay.n <= 60 and fits(lay):
+            gen.append((f"{fam}/{seed - 1}", lay))
+    fd = [fd_case(name, lay, rng) for name, lay in refs + gen[: args.n_fd]]
+    for r in fd:
+        print("fd", r["name"], r["weights"]["max_rel_err"], r["loads"]["max_rel_err"], flush=True)
+    ver = [verdict_case(name, lay) for name, lay in refs + gen[: args.n_verdict]]
+    for r in ver:
+        if not (r["converged"] and r["failing_set_equal"] and r["loss_positive_iff_failing"]):
+            print("verdict", r, flush=True)
+    rel = [v for r in fd for k in ("weights", "loads") if (v := r[k]["max_rel_err"]) is not None]
+    summary = {
+        "fd_layouts": len(fd), "fd_components": sum(r[k]["components"] for r in fd for k in ("weights", "loads")),
+        "fd_max_rel_err": max(rel), "fd_median_of_max_rel_err": float(np.median(rel)),
+        "fd_layouts_under_5pct": sum(all((r[k]["max_rel_err"] or 0) < 0.05 for k in ("weights", "loads")) for r in fd),
+        "verdict_layouts": len(ver), "converged": sum(r["converged"] for r in ver),
+        "stable_verdict_agrees": sum(r["soft_stable"] == r["exact_stable"] for r in ver),
+        "failing_set_agrees": sum(r["failing_set_equal"] for r in ver),
+        "loss_positive_iff_failing": sum(r["loss_positive_iff_failing"] for r in ver),
+        "median_max_drag_err_N": float(np.median([r["max_drag_err_N"] for r in ver])),
+        "time_s": round(time.time() - t0, 1),
+    }
+    atomic_write_text(args.out, json.dumps({"summary": summary, "fd": fd, "verdict": ver}, indent=1) + "\n")
+    print(json.dumps(summary, indent=1))
+
+
+if __name__ == "__main__":
+    main()
