@@ -69,6 +69,10 @@ def main() -> None:
         print(f"== {solver}", file=sys.stderr, flush=True)
         summary[solver] = run_solver(args.shard, outs[solver], solver, args.batch, args.exact_method)
         summary[solver]["exact_method"] = args.exact_method if solver == "exact" else None
+        with open(summary_path, "w") as fh:  # each solver's totals are kept as soon as they exist
+            json.dump(summary, fh, indent=1)
+    if not all(s in summary for s in ("exact", "jax")):
+        raise SystemExit(f"run both solvers first (have: {sorted(summary)})")
     a, b = load(outs["exact"]), load(outs["jax"])
     common = [k for k in a if k in b and "error" not in a[k] and "error" not in b[k]]
     lab = sum(a[k]["stable"] == b[k]["stable"] for k in common)
