@@ -151,14 +151,14 @@ def cmd_repair(args) -> int:
     path = args.layout
     try:
         layout = load_layout(path, args.library)
+        if layout.fmt == "dataset" and os.path.exists(args.out):
+            raise LayoutError(args.out, "already exists (dataset objects are written as new folders)")
         opts = RepairOptions(region=args.region, max_add=args.max_add, allow_remove=args.allow_remove,
                              verify=args.verify)
         result = (repair if args.method == "gradient" else greedy_repair)(layout, opts)
         if layout.fmt == "text":
             result = _relabel_text(result, path)
         if result.stable:
-            if layout.fmt == "dataset" and os.path.exists(args.out):
-                raise LayoutError(args.out, "already exists (dataset objects are written as new folders)")
             _write(result, path, args.out, args.library)
         png = None
         if args.png:
