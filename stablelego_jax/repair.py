@@ -79,6 +79,8 @@ class RepairOptions:
     max_candidates: cap on candidates per step (nearest the weakest bricks first).
     temperature: loss temperature of the ranking.
     exact_method: HiGHS method of the exact solver.
+    sizes: footprints (sx, sy) new bricks may have (None: every Table I brick);
+      e.g. the sizes of a custom library.
     params: physical parameters.
     """
 
@@ -90,7 +92,11 @@ class RepairOptions:
     max_candidates: int = 48
     temperature: float = 0.02
     exact_method: str = "highs"
+    sizes: tuple | None = None
     params: Params = Params()
+
+    def allowed(self, sx: int, sy: int) -> bool:
+        return self.sizes is None or (sx, sy) in self.sizes
 
     def __post_init__(self):
         if self.region not in REGIONS:
@@ -303,6 +309,8 @@ def propose(layout: Layout, analysis: Analysis, opts: RepairOptions, budget: int
             return
         sups = []
         for fx, fy in _SUPPORT:
+            if not opts.allowed(fx, fy):
+                continue
             for x0 in range(x - fx + 1, x + sx):
                 for y0 in range(y - fy + 1, y + sy):
                     if not space.rect_free(x0, y0, z - 1, fx, fy):
@@ -347,6 +355,8 @@ def propose(layout: Layout, analysis: Analysis, opts: RepairOptions, budget: int
             if zz < 0:
                 continue
             for fx, fy in _BRIDGE:
+                if not opts.allowed(fx, fy):
+                    continue
                 for (cx, cy, _) in sorted(nbrs):
                     for x0 in range(min(x, cx) - fx + 1, max(x + sx, cx + 1)):
                         for y0 in range(min(y, cy) - fy + 1, max(y + sy, cy + 1)):
@@ -362,6 +372,8 @@ def propose(layout: Layout, analysis: Analysis, opts: RepairOptions, budget: int
                 for ext in (2, 4):
                     new_len = length + ext
                     if (min(new_len, width), max(new_len, width)) not in TABLE_I_MASS_KG:
+                        continue
+                    if not opts.allowed(*((new_len, width) if along == 0 else (width, new_len))):
                         continue
                     for shift in range(0, ext + 1, max(ext // 2, 1)):
                         nx, ny = (x - shift, y) if along == 0 else (x, y - shift)

@@ -121,6 +121,21 @@ def _with_library_ids(layout, new_keys, library):
     return dataclasses.replace(layout, brick_id=tuple(bids), ori=oris)
 
 
+def _library_sizes(library) -> tuple:
+    """Footprints of the real (Table I mass) bricks of a library, both orientations."""
+    import math
+
+    from .io import _as_library
+    from .layout import TABLE_I_MASS_KG
+
+    out = set()
+    for h, w, m in _as_library(library).bricks.values():
+        key = (min(h, w), max(h, w))
+        if key in TABLE_I_MASS_KG and math.isclose(m, TABLE_I_MASS_KG[key], rel_tol=1e-9):
+            out.update({(h, w), (w, h)})
+    return tuple(sorted(out))
+
+
 def _write(result, src: str, out: str, library) -> None:
     fmt = result.original.fmt
     new_keys = set(result.layout.keys) - set(result.original.keys)
@@ -154,7 +169,7 @@ def cmd_repair(args) -> int:
         if layout.fmt == "dataset" and os.path.exists(args.out):
             raise LayoutError(args.out, "already exists (dataset objects are written as new folders)")
         opts = RepairOptions(region=args.region, max_add=args.max_add, allow_remove=args.allow_remove,
-                             verify=args.verify)
+                             verify=args.verify, sizes=_library_sizes(args.library) if args.library else None)
         result = (repair if args.method == "gradient" else greedy_repair)(layout, opts)
         if layout.fmt == "text":
             result = _relabel_text(result, path)
