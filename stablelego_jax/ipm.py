@@ -35,7 +35,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .model import NORMAL, SIDE, ForceModel, Params
-from .solver import Problem, Solution, _ops
+from .solver import Problem, Solution, _ops, _solution
 
 __all__ = ["IPMOptions", "solve", "layer_plan", "layer_bucket", "to_layered", "layered_problem"]
 
@@ -189,7 +189,6 @@ def _system(prob: Problem, params: Params, opts: IPMOptions) -> dict:
     k6 = 6 * B
     w = jnp.where(prob.brick_mask[:, None], w, 1.0)  # padding rows: r = 0 at unit cost
     kind, cmask = prob.col_kind, prob.col_mask
-    one = jnp.ones((), dtype)
     act_n = ((kind == NORMAL) & cmask).astype(dtype)
     act_s = ((kind == SIDE) & cmask).astype(dtype)
     # D exists on NORMAL contacts only (elsewhere it stays 0 and has no cost)
@@ -382,11 +381,8 @@ def solve(prob: Problem, params: Params = Params(), opts: IPMOptions = IPMOption
     see :func:`to_layered`); None or L = 1: dense.
     """
     K = _system(prob, params, opts)
-    A, g, m, n, act, dtype, dot = K["A"], K["g"], K["m"], K["n"], K["act"], K["dtype"], K["dot"]
+    act, dtype, dot, n_act = K["act"], K["dtype"], K["dot"], K["n_act"]
     measures, G, factor, direction, max_step = K["measures"], K["G"], K["factor"], K["direction"], K["max_step"]
-    n_act, act_s, kind, cmask = K["n_act"], K["act_s"], K["kind"], K["cmask"]
-    params = K["params"]
-
     z0, nu0, lam0 = K["start"]()
 
     def body(c):
@@ -422,17 +418,5 @@ def solve(prob: Problem, params: Params = Params(), opts: IPMOptions = IPMOption
     c0 = dict(z=z0, nu=nu0, lam=lam0, it=jnp.asarray(0), done=jnp.asarray(False), ok=jnp.asarray(False),
               pres=big, dres=big, obj=big, dual=-big)
     c = jax.lax.while_loop(lambda c: (~c["done"]) & (c["it"] < opts.max_iter), body, c0)
-    x = c["z"][0]
-    x = jnp.where(kind == SIDE, jnp.maximum(x, 0.0), x)
-    x = jnp.where(cmask, x, 0.0)
-    T = params.T
-    return Solution(
-        f=(x * T).astype(jnp.float64),
-        iters=c["it"],
-        converged=c["ok"],
-        primal_res=c["pres"],
-        dual_res=c["dres"],
-        objective=c["obj"] * T,
-        dual_bound=c["dual"] * T,
-        gap=(c["obj"] - c["dual"]) / jnp.maximum(jnp.abs(c["obj"]), 1e-12),
-    )
+    gap = (c["obj"] - c["dual"]) / jnp.maximum(jnp.abs(c["obj"]), 1e-12)
+    return _solution(prob, params, c["z"][0], c["it"], c["ok"], c["pres"], c["dres"], c["obj"], c["dual"], gap)

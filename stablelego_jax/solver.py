@@ -373,19 +373,19 @@ def solve(prob: Problem, params: Params = Params(), opts: SolverOptions = Solver
         anchor=state0, k=jnp.asarray(0.0, dtype), res_restart=big, res_prev=big, best=state0,
     )
     c = jax.lax.while_loop(outer_cond, outer_body, carry)
-    x = c["best"][0]
-    x = jnp.where(kind == SIDE, jnp.maximum(x, 0.0), x)
+    return _solution(prob, params, c["best"][0], c["it"], c["done"], c["pr"], c["dr"], c["obj"], c["dual"], c["gap"])
+
+
+def _solution(prob: Problem, params: Params, x, iters, converged, pr, dr, obj, dual, gap) -> Solution:
+    """A Solution from scaled forces ``x`` (in T) and scaled diagnostics:
+    side presses clipped to >= 0, padding columns zeroed, forces and
+    objective back in N."""
+    x = jnp.where(prob.col_kind == SIDE, jnp.maximum(x, 0.0), x)
     x = jnp.where(prob.col_mask, x, 0.0)
     T = params.T
     return Solution(
-        f=(x * T).astype(jnp.float64),
-        iters=c["it"],
-        converged=c["done"],
-        primal_res=c["pr"],
-        dual_res=c["dr"],
-        objective=c["obj"] * T,
-        dual_bound=c["dual"] * T,
-        gap=c["gap"],
+        f=(x * T).astype(jnp.float64), iters=iters, converged=converged, primal_res=pr, dual_res=dr,
+        objective=obj * T, dual_bound=dual * T, gap=gap,
     )
 
 
