@@ -29,7 +29,6 @@ import numpy as np  # noqa: E402
 from generators.procedural import cuboid  # noqa: E402
 from stablelego_jax import ipm  # noqa: E402
 from stablelego_jax.api import _jitted, analyze_layout  # noqa: E402
-from stablelego_jax.batch import solve_plan  # noqa: E402
 from stablelego_jax.model import bucket_size, compile_layout  # noqa: E402
 
 HERE = os.path.dirname(os.path.abspath(__file__))
@@ -43,12 +42,9 @@ def time_cube(k: int) -> dict:
         a = analyze_layout(lay, solver="exact")
         te.append(a.time_s)
     model = compile_layout(lay)
-    key = solve_plan(model)
+    key = ipm.solve_plan(model)
     m_pad, p_pad = bucket_size(model.m, base=64), bucket_size(model.group.shape[1], base=4)
-    if key[0] == "layered":
-        prob = ipm.layered_problem(ipm.to_layered(model.pad(model.n, m_pad, p_pad), key[1], key[2]), key[1])
-    else:
-        prob = ipm.layered_problem(model.pad(key[1], m_pad, p_pad), 1)
+    _, prob = ipm.plan_problem(model, key, m_pad, p_pad)
     fn = _jitted(model.params, ipm.IPMOptions())
     t0 = time.perf_counter()
     comp = fn.lower(prob).compile()

@@ -92,24 +92,16 @@ def solve_jax(model: ForceModel, opts=None):
     """Solve one model with a jit-compiled JAX solver, padded to its bucket.
 
     opts: :class:`~stablelego_jax.ipm.IPMOptions` or None (interior point,
-    dense or layer-by-layer as :func:`~stablelego_jax.batch.solve_plan`
+    dense or layer-by-layer as :func:`~stablelego_jax.ipm.solve_plan`
     chooses) or :class:`~stablelego_jax.solver.SolverOptions` (ADMM).
     Returns (Solution, model the forces belong to: padded, bricks in input
     order)."""
     if isinstance(opts, SolverOptions):
         padded = pad_to_bucket(model)
         return jax.device_get(_jitted(model.params, opts)(to_problem(padded))), padded
-    from .batch import solve_plan
-
     opts = opts or ipm.IPMOptions()
-    key = solve_plan(model)
     m_pad, p_pad = bucket_size(model.m, base=64), bucket_size(model.group.shape[1], base=4)
-    if key[0] == "layered":
-        padded = model.pad(model.n, m_pad, p_pad)
-        prob = ipm.layered_problem(ipm.to_layered(padded, key[1], key[2]), key[1])
-    else:
-        padded = model.pad(key[1], m_pad, p_pad)
-        prob = ipm.layered_problem(padded, 1)
+    padded, prob = ipm.plan_problem(model, ipm.solve_plan(model), m_pad, p_pad)
     return jax.device_get(_jitted(model.params, opts)(prob)), padded
 
 

@@ -2,7 +2,7 @@
 resumable JSON-lines results.
 
 Flow per chunk of inputs: read and compile each layout (numpy), choose its
-solver bucket (:func:`solve_plan`: a dense or a layer-by-layer shape for the
+solver bucket (:func:`~stablelego_jax.ipm.solve_plan`: a dense or a layer-by-layer shape for the
 interior-point solver), group equal buckets, pad each group to its largest
 column count, and solve each group in batches with one jit-compiled,
 ``vmap``-ed solver per (bucket shape, batch size), split over the local
@@ -34,6 +34,7 @@ from .io import atomic_write, atomic_write_text, load_layout
 from .model import Params, bucket_size, compile_layout
 from .progress import Progress
 from . import ipm
+from .ipm import solve_plan
 from .solver import SolverOptions, solve, stack_problems, to_problem
 
 __all__ = ["find_layouts", "read_results", "ScoreStats", "score_files", "make_batch_solver", "batch_sizes",
@@ -92,19 +93,6 @@ def read_results(out: str) -> dict:
     if torn:
         atomic_write_text(out, "".join(good))
     return done
-
-
-def solve_plan(model) -> tuple:
-    """Bucket key of the interior-point solver for ``model``: ("dense", n_pad)
-    or ("layered", L_pad, B_pad), whichever factorises more cheaply (the
-    block-tridiagonal form costs ~3 L (6 B)^3 flops, the dense one
-    (6 n)^3 / 3); layouts of up to 48 bricks stay dense (one small factor
-    beats a scan over layers)."""
-    n_b = bucket_size(model.n)
-    Lp, Bp = ipm.layer_bucket(*ipm.layer_plan(model))
-    if n_b > 48 and Lp > 1 and 3 * Lp * Bp ** 3 < n_b ** 3 / 3:
-        return ("layered", Lp, Bp)
-    return ("dense", n_b)
 
 
 def plan_bytes(key: tuple, m_pad: int) -> int:
@@ -314,12 +302,11 @@ def score_files(
                 p_pad = bucket_size(max(it[2].group.shape[1] for it in items), base=4)
                 prepared = []
                 for it in items:
-                    if key[0] == "layered":
-                        fm = it[2].pad(it[2].n, m_pad, p_pad)  # scores are computed on this one
-                        prob = ipm.layered_problem(ipm.to_layered(fm, key[1], key[2]), key[1])
+                    if solver == "jax":
+                        fm, prob = ipm.plan_problem(it[2], key, m_pad, p_pad)
                     else:
                         fm = it[2].pad(key[1], m_pad, p_pad)
-                        prob = ipm.layered_problem(fm, 1) if solver == "jax" else to_problem(fm)
+                        prob = to_problem(fm)
                     prepared.append((it, fm, prob))
                 gkey = key + (m_pad, p_pad)
                 bsz = batch_sizes(plan_bytes(key, m_pad), batch, n_dev)

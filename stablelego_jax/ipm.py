@@ -37,7 +37,8 @@ import numpy as np
 from .model import NORMAL, SIDE, ForceModel, Params
 from .solver import Problem, Solution, _ops, _solution
 
-__all__ = ["IPMOptions", "solve", "layer_plan", "layer_bucket", "to_layered", "layered_problem"]
+__all__ = ["IPMOptions", "solve", "layer_plan", "layer_bucket", "to_layered", "layered_problem", "solve_plan",
+           "plan_problem"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -133,6 +134,31 @@ def layered_problem(model: ForceModel, L: int) -> Problem:
     from .solver import to_problem
 
     return to_problem(model)._replace(layers=np.zeros(L, np.int8))
+
+
+def solve_plan(model: ForceModel) -> tuple:
+    """Bucket key of ``model``: ("dense", n_pad) or ("layered", L_pad, B_pad),
+    whichever factorises more cheaply (the block-tridiagonal form costs
+    ~3 L (6 B)^3 flops, the dense one (6 n)^3 / 3); layouts of up to 48
+    bricks stay dense (one small factor beats a scan over layers)."""
+    from .model import bucket_size
+
+    n_b = bucket_size(model.n)
+    Lp, Bp = layer_bucket(*layer_plan(model))
+    if n_b > 48 and Lp > 1 and 3 * Lp * Bp ** 3 < n_b ** 3 / 3:
+        return ("layered", Lp, Bp)
+    return ("dense", n_b)
+
+
+def plan_problem(model: ForceModel, key: tuple, m_pad: int, p_pad: int) -> tuple[ForceModel, Problem]:
+    """(model to score the forces on, Problem to solve) for bucket ``key`` with
+    ``m_pad`` columns and ``p_pad`` contact slots: the scoring model keeps the
+    input brick order; the Problem is numbered layer by layer when layered."""
+    if key[0] == "layered":
+        fm = model.pad(model.n, m_pad, p_pad)
+        return fm, layered_problem(to_layered(fm, key[1], key[2]), key[1])
+    fm = model.pad(key[1], m_pad, p_pad)
+    return fm, layered_problem(fm, 1)
 
 
 # ---------------------------------------------------------------- algebra
