@@ -26,6 +26,7 @@ import numpy as np  # noqa: E402
 
 from generators.procedural import random_family_layout  # noqa: E402
 from stablelego_jax.api import analyze_layout  # noqa: E402
+from stablelego_jax.batch import read_results  # noqa: E402
 from stablelego_jax.io import atomic_write_text  # noqa: E402
 from stablelego_jax.solver import SolverOptions  # noqa: E402
 
@@ -97,16 +98,8 @@ def main() -> None:
     ap.add_argument("--out", default=os.path.join(os.path.dirname(__file__), "results", "agreement.jsonl"))
     args = ap.parse_args()
     os.makedirs(os.path.dirname(args.out), exist_ok=True)
-    done = {}
-    if os.path.exists(args.out):
-        with open(args.out) as fh:
-            for line in fh:
-                try:
-                    r = json.loads(line)
-                    if r.get("settings") == SETTINGS:
-                        done[r["seed"]] = r
-                except (json.JSONDecodeError, KeyError):
-                    pass  # a torn last line from an interrupted run
+    # rows of the current settings; a torn last line of an interrupted run is dropped
+    done = {s: r for s, r in read_results(args.out, key="seed").items() if r.get("settings") == SETTINGS}
     t0 = time.time()
     if os.path.exists(args.out):
         # keep only rows of the current settings (rewritten atomically)

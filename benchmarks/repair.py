@@ -47,6 +47,7 @@ import numpy as np  # noqa: E402
 
 from generators.procedural import lever, stairs, tower, voxel_layout  # noqa: E402
 from stablelego_jax.api import analyze_layout  # noqa: E402
+from stablelego_jax.batch import read_results  # noqa: E402
 from stablelego_jax.repair import RepairOptions, greedy_repair, repair, rollback_repair  # noqa: E402
 
 FAMILIES = ("stairs", "tower", "lever", "loaded", "voxels")
@@ -162,15 +163,7 @@ def main():
     ap.add_argument("--max-bricks", type=int, default=60)
     ap.add_argument("--table", action="store_true", help="only print the table of --out")
     args = ap.parse_args()
-    done = {}
-    if os.path.exists(args.out):
-        with open(args.out) as fh:
-            for line in fh:
-                try:
-                    r = json.loads(line)
-                except json.JSONDecodeError:  # a torn last line after a kill
-                    continue
-                done[r["name"]] = r
+    done = read_results(args.out, key="name")  # drops a torn last line after a kill
     if not args.table:
         opts = RepairOptions(max_add=args.max_add, verify=args.verify)
         print(f"# {platform.processor() or platform.machine()}, {os.cpu_count()} CPUs; {opts}", flush=True)

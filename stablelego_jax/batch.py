@@ -72,9 +72,10 @@ def find_layouts(inputs: Sequence[str]) -> list[str]:
     return [p for p in out if not (p in seen or seen.add(p))]
 
 
-def read_results(out: str) -> dict:
-    """{file: record} of a results file; a torn or corrupt line is dropped and
-    the file rewritten without it (atomically)."""
+def read_results(out: str, key: str = "file") -> dict:
+    """{record[key]: record} of a JSON-lines results file; a torn or corrupt
+    line (or one without ``key``) is dropped and the file rewritten without
+    it (atomically)."""
     done: dict = {}
     if not os.path.exists(out):
         return done
@@ -83,12 +84,12 @@ def read_results(out: str) -> dict:
         for line in fh:
             try:
                 rec = json.loads(line)
-                if not isinstance(rec, dict) or "file" not in rec or not line.endswith("\n"):
+                if not isinstance(rec, dict) or key not in rec or not line.endswith("\n"):
                     raise ValueError
             except ValueError:
                 torn += 1
                 continue
-            done[rec["file"]] = rec
+            done[rec[key]] = rec
             good.append(line)
     if torn:
         atomic_write_text(out, "".join(good))
