@@ -28,12 +28,13 @@ import os
 import shutil
 import tempfile
 import time
-from typing import Iterator, Mapping, Sequence
+from typing import Iterator, Mapping
 
 import numpy as np
 
 from stablelego_jax.io import _umask, layout_to_json_dict, load_layout
-from stablelego_jax.layout import Layout, LayoutError, cells_of
+from stablelego_jax.layout import Layout, LayoutError, layout_voxels
+from stablelego_jax.score import score_grid
 
 from .voxels import DEFAULT_BRICKS, merge_voxels, parse_bricks
 
@@ -115,40 +116,6 @@ class GeneratedObject:
 
 # --------------------------------------------------------------------------
 # grids
-
-
-def layout_voxels(layout: Layout, shape: Sequence[int] | None = None) -> np.ndarray:
-    """(X, Y, Z) bool occupancy of ``layout``; ``shape`` at least its extent
-    (default exactly its extent). Raises LayoutError if a brick lies outside
-    ``shape``."""
-    occ = layout.occupancy() >= 0
-    if shape is None:
-        return occ
-    shape = tuple(int(s) for s in shape)
-    if len(shape) != 3 or any(o > s for o, s in zip(occ.shape, shape)):
-        raise LayoutError(layout.source, f"bricks span a {'x'.join(map(str, occ.shape))} grid, "
-                                         f"larger than the voxel grid {'x'.join(map(str, shape))}")
-    out = np.zeros(shape, bool)
-    out[: occ.shape[0], : occ.shape[1], : occ.shape[2]] = occ
-    return out
-
-
-def score_grid(layout: Layout, scores, shape: Sequence[int] | None = None) -> np.ndarray:
-    """(X, Y, Z) float64 grid: each brick's cells hold its score, empty cells 0.
-
-    ``scores``: {key: score} or a sequence aligned with layout.keys.
-    """
-    if isinstance(scores, Mapping):
-        s = np.array([float(scores[k]) for k in layout.keys])
-    else:
-        s = np.asarray(scores, np.float64).reshape(-1)
-        if s.shape != (layout.n,):
-            raise ValueError(f"scores must hold one value per brick ({layout.n}), got {s.shape}")
-    shape = layout_voxels(layout, shape).shape
-    grid = np.zeros(shape, np.float64)
-    cells, owner = cells_of(layout.pos, layout.size)
-    grid[cells[:, 0], cells[:, 1], cells[:, 2]] = s[owner]
-    return grid
 
 
 def _check_cover(layout: Layout, vox: np.ndarray, where: str) -> None:

@@ -33,6 +33,7 @@ from .exact import solve_exact
 from .io import atomic_write, atomic_write_text, load_layout
 from .model import Params, bucket_size, compile_layout
 from .progress import Progress
+from .score import score_grid
 from . import ipm
 from .ipm import solve_plan
 from .solver import SolverOptions, solve, stack_problems, to_problem
@@ -161,8 +162,6 @@ class ScoreStats:
 
 def _write_score_grid(path: str, layout, scores) -> None:
     """stability_score.npy beside a dataset object (grid shape of its vox.npy)."""
-    from generators.dataset import score_grid
-
     shape = None
     vox = os.path.join(path, "vox.npy")
     if os.path.exists(vox):

@@ -25,6 +25,7 @@ __all__ = [
     "MAX_COORD",
     "MAX_SIZE",
     "MAX_GRID_CELLS",
+    "layout_voxels",
 ]
 
 # Paper Table I, in kg, keyed by the sorted (short, long) footprint.
@@ -318,3 +319,19 @@ def _is_int(v) -> bool:
 
 def _is_number(v) -> bool:
     return isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool)
+
+
+def layout_voxels(layout: Layout, shape: Sequence[int] | None = None) -> np.ndarray:
+    """(X, Y, Z) bool occupancy of ``layout``; ``shape`` at least its extent
+    (default exactly its extent). Raises LayoutError if a brick lies outside
+    ``shape``."""
+    occ = layout.occupancy() >= 0
+    if shape is None:
+        return occ
+    shape = tuple(int(s) for s in shape)
+    if len(shape) != 3 or any(o > s for o, s in zip(occ.shape, shape)):
+        raise LayoutError(layout.source, f"bricks span a {'x'.join(map(str, occ.shape))} grid, "
+                                         f"larger than the voxel grid {'x'.join(map(str, shape))}")
+    out = np.zeros(shape, bool)
+    out[: occ.shape[0], : occ.shape[1], : occ.shape[2]] = occ
+    return out

@@ -5,14 +5,17 @@ for batches.
 """
 from __future__ import annotations
 
+from typing import Mapping, Sequence
+
 import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .layout import Layout, cells_of, layout_voxels
 from .model import NORMAL
 
 
-__all__ = ["residual", "brick_drag", "brick_scores"]
+__all__ = ["residual", "brick_drag", "brick_scores", "score_grid"]
 
 
 def _xp(*arrays):
@@ -60,3 +63,21 @@ def brick_scores(model, f, params=None):
     dmax = brick_drag(model, f)
     s = xp.where(bad | (dmax >= p.T * (1.0 - p.drag_rtol)), 1.0, dmax / p.T)
     return xp.where(model.brick_mask, s, 0.0), bad & model.brick_mask, dmax
+
+
+def score_grid(layout: Layout, scores, shape: Sequence[int] | None = None) -> np.ndarray:
+    """(X, Y, Z) float64 grid: each brick's cells hold its score, empty cells 0.
+
+    ``scores``: {key: score} or a sequence aligned with layout.keys.
+    """
+    if isinstance(scores, Mapping):
+        s = np.array([float(scores[k]) for k in layout.keys])
+    else:
+        s = np.asarray(scores, np.float64).reshape(-1)
+        if s.shape != (layout.n,):
+            raise ValueError(f"scores must hold one value per brick ({layout.n}), got {s.shape}")
+    shape = layout_voxels(layout, shape).shape
+    grid = np.zeros(shape, np.float64)
+    cells, owner = cells_of(layout.pos, layout.size)
+    grid[cells[:, 0], cells[:, 1], cells[:, 2]] = s[owner]
+    return grid
