@@ -49,6 +49,8 @@ __all__ = [
     "pad_soft",
     "stack_soft",
     "candidate_brick",
+    "compile_placements",
+    "placement_pairs",
 ]
 
 
@@ -288,15 +290,7 @@ def compile_soft(layout: Layout, candidates: Sequence[Candidate] = (), params: P
     col_coef = np.concatenate(cols_c)
     col_kind = np.concatenate(cols_k).astype(np.int8)
     m = len(col_kind)
-    normal = np.nonzero(col_kind == NORMAL)[0]
-    owner = col_brick[normal, 0]
-    order = np.argsort(owner, kind="stable")
-    normal, owner = normal[order], owner[order]
-    counts = np.bincount(owner, minlength=n)
-    P = max(int(counts.max()) if counts.size else 1, 1)
-    slot = np.arange(len(owner)) - np.repeat(np.cumsum(counts) - counts, counts)
-    group = np.full((n, P), m, np.int32)
-    group[owner, slot] = normal
+    group = _normal_groups(col_brick, col_kind, n)
     prob = SoftProblem(
         col_brick=col_brick,
         col_coef=col_coef.astype(np.float64),
@@ -310,6 +304,108 @@ def compile_soft(layout: Layout, candidates: Sequence[Candidate] = (), params: P
     return SoftLayout(
         base=layout, candidates=tuple(candidates), problem=prob, params=params,
         unit_bricks=unit_bricks, unit_index=np.asarray(unit_index, np.int64),
+    )
+
+
+def _normal_groups(col_brick: np.ndarray, col_kind: np.ndarray, n: int) -> np.ndarray:
+    """(n, P) int32 table of the NORMAL columns on each brick's bottom (``m`` = none)."""
+    m = len(col_kind)
+    normal = np.nonzero(col_kind == NORMAL)[0]
+    owner = col_brick[normal, 0]
+    order = np.argsort(owner, kind="stable")
+    normal, owner = normal[order], owner[order]
+    counts = np.bincount(owner, minlength=n)
+    P = max(int(counts.max()) if counts.size else 1, 1)
+    slot = np.arange(len(owner)) - np.repeat(np.cumsum(counts) - counts, counts)
+    group = np.full((n, P), m, np.int32)
+    group[owner, slot] = normal
+    return group
+
+
+def placement_pairs(pos, size):
+    """Contact pairs of a set of placements that may overlap (alternatives).
+
+    pos: (k, 3) corner cells; size: (k, 2) extents. Returns (vertical (p, 2)
+    [lower, upper] pairs in adjacent layers with overlapping footprints,
+    side (q, 2) pairs in one layer that do not overlap but share a face,
+    ground (r,) placements on layer 0).
+    """
+    pos = np.asarray(pos, np.int64).reshape(-1, 3)
+    size = np.asarray(size, np.int64).reshape(-1, 2)
+    lo, hi = pos[:, :2], pos[:, :2] + size
+    # per axis: overlap length (> 0: overlap, == 0: touching, < 0: apart)
+    ov = np.minimum(hi[:, None], hi[None, :]) - np.maximum(lo[:, None], lo[None, :])  # (k, k, 2)
+    z = pos[:, 2]
+    dz = z[None, :] - z[:, None]
+    foot = (ov > 0).all(axis=-1)
+    vert = np.argwhere(foot & (dz == 1))
+    touch = ((ov[..., 0] == 0) & (ov[..., 1] > 0)) | ((ov[..., 1] == 0) & (ov[..., 0] > 0))
+    side = np.argwhere(touch & (dz == 0))
+    side = side[side[:, 0] < side[:, 1]]
+    return vert, side, np.nonzero(z == 0)[0]
+
+
+def compile_placements(pos, size, mass, params: Params = Params()) -> SoftProblem:
+    """:class:`SoftProblem` over ``k`` brick placements that may overlap.
+
+    pos: (k, 3) corner cells; size: (k, 2) extents (studs); mass: (k,) kg.
+    Overlapping placements are alternatives (no contact between them);
+    every pair in adjacent layers with overlapping footprints gets the knob
+    connection (NORMAL + KNOB columns), every non-overlapping pair sharing a
+    face in one layer the side presses, and each layer-0 placement its
+    baseplate connection, each exactly as :func:`model.compile_layout`
+    makes them for the layout of just those bricks (it is called once on a
+    layout holding every pair, translated into its own slot: wrench
+    coefficients are translation invariant). So a non-overlapping subset at
+    weight 1 and the rest at weight 0 is that subset's layout. Every
+    placement is its own unit.
+    """
+    pos = np.asarray(pos, np.int64).reshape(-1, 3)
+    size = np.asarray(size, np.int64).reshape(-1, 2)
+    mass = np.asarray(mass, np.float64).reshape(-1)
+    k = len(pos)
+    if len(size) != k or len(mass) != k:
+        raise ValueError(f"pos, size and mass must have one row per placement ({k}), got {len(size)}, {len(mass)}")
+    if k == 0:
+        raise ValueError("no placements")
+    vert, side, ground = placement_pairs(pos, size)
+    # slots: (members, z of each member in the slot)
+    members = [np.stack([ground, np.full(len(ground), -1)], 1), vert, side]
+    zs = [np.stack([np.zeros(len(ground)), np.full(len(ground), -1)], 1),
+          np.tile([1, 2], (len(vert), 1)), np.ones((len(side), 2))]
+    mem = np.concatenate(members).astype(np.int64)
+    zsl = np.concatenate(zs).astype(np.int64)
+    cols_b, cols_c, cols_k = [], [], []
+    if len(mem):
+        real = mem >= 0
+        mi = np.where(real, mem, 0)
+        blo = np.where(real[..., None], pos[mi, :2], 10**9).min(axis=1)  # (s, 2) slot bbox corner
+        bhi = np.where(real[..., None], pos[mi, :2] + size[mi], -1).max(axis=1)
+        stride = int((bhi - blo).max()) + 1  # one empty cell between slots: no side contact
+        ncol = int(np.ceil(np.sqrt(len(mem))))
+        sidx = np.arange(len(mem))
+        origin = np.stack([sidx % ncol, sidx // ncol], 1) * stride
+        sl, mslot = np.nonzero(real)
+        bp = np.concatenate([pos[mem[sl, mslot], :2] - blo[sl] + origin[sl], zsl[sl, mslot][:, None]], 1)
+        gidx = mem[sl, mslot]
+        big = make_layout([str(i) for i in range(len(gidx))], bp, size[gidx], mass[gidx])
+        bm = compile_layout(big, params)
+        cb, coef, kind = _columns(bm)
+        nb = big.n
+        gmap = np.concatenate([gidx, [k]])
+        cols_b.append(gmap[np.minimum(cb, nb)])
+        cols_c.append(coef)
+        cols_k.append(kind)
+    if cols_b:
+        col_brick = np.concatenate(cols_b).astype(np.int32)
+        col_coef = np.concatenate(cols_c).astype(np.float64)
+        col_kind = np.concatenate(cols_k).astype(np.int8)
+    else:
+        col_brick, col_coef, col_kind = np.zeros((0, 2), np.int32), np.zeros((0, 2, 6)), np.zeros(0, np.int8)
+    return SoftProblem(
+        col_brick=col_brick, col_coef=col_coef, col_kind=col_kind,
+        col_mask=np.ones(len(col_kind), bool), group=_normal_groups(col_brick, col_kind, k),
+        mass=mass, brick_mask=np.ones(k, bool), unit=np.arange(k, dtype=np.int32),
     )
 
 
