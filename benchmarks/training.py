@@ -1,0 +1,205 @@
+"""Issue 6 benchmark: the generator trained with and without the stability loss.
+
+    python benchmarks/training.py [--config training/configs/default.json]
+        [--lams 0,LAM] [--seeds 0,1,2] [--runs out/training_runs] [--jobs 2]
+
+Trains one generator per (lambda, seed) with ``python -m training.train``
+(``--resume``: finished runs are reused, interrupted ones continue from
+their checkpoint), at most ``--jobs`` at once, evaluates each on the
+held-out shapes with ``python -m training.evaluate`` (exact solver), scores
+the merge heuristic of ``generators/`` on the same shapes, and writes
+``benchmarks/results/training.json`` and ``training_curves.png``; prints a
+markdown table. Target (issue 6): the stability term raises the held-out
+stable fraction by >= 20 percentage points at a cost of at most 0.02 IoU
+(means over the seeds).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import time
+
+import numpy as np
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+REPO = os.path.dirname(HERE)
+
+
+#: decoding name -> evaluate's method name (see training.evaluate)
+DECODINGS = {"strict": "generator", "filled": "generator_filled"}
+
+
+def _run_all(cmds, jobs):
+    """Run (name, argv, log) commands, ``jobs`` at a time; {name: (rc, wall_s)}."""
+    env = dict(os.environ, OPENBLAS_NUM_THREADS="1", PYTHONPATH=REPO)
+    pending, running, out = list(cmds), [], {}
+    while pending or running:
+        while pending and len(running) < jobs:
+            name, argv, log = pending.pop(0)
+            fh = open(log, "a")
+            running.append((name, subprocess.Popen(argv, cwd=REPO, stdout=fh, stderr=fh, env=env), time.time(), fh))
+        time.sleep(2)
+        for r in list(running):
+            if r[1].poll() is not None:
+                r[3].close()
+                out[r[0]] = (r[1].returncode, time.time() - r[2])
+                running.remove(r)
+    return out
+
+
+def _rows(path):
+    with open(path) as fh:
+        return [json.loads(line) for line in fh if line.strip()]
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--config", default=os.path.join(REPO, "training", "configs", "default.json"))
+    ap.add_argument("--lams", default=None, help="comma-separated lambdas (default: 0,1000)")
+    ap.add_argument("--seeds", default="0,1,2")
+    ap.add_argument("--runs", default=os.path.join(REPO, "out", "training_runs"))
+    ap.add_argument("--jobs", type=int, default=2)
+    ap.add_argument("--results", default=os.path.join(HERE, "results"))
+    a = ap.parse_args(argv)
+    lams = [float(x) for x in (a.lams or "0,1000").split(",")]
+    seeds = [int(x) for x in a.seeds.split(",")]
+    os.makedirs(a.runs, exist_ok=True)
+    py = sys.executable
+    runs = {(lam, s): os.path.join(a.runs, f"lam{lam:g}_seed{s}") for lam in lams for s in seeds}
+    cmds = []
+    for (lam, s), d in runs.items():
+        hist = os.path.join(d, "history.json")
+        if os.path.exists(hist):
+            continue
+        os.makedirs(d, exist_ok=True)
+        cmds.append((f"train lam={lam:g} seed={s}", [py, "-m", "training.train", "--config", a.config, "--lam", str(lam),
+                                                     "--seed", str(s), "--out", d, "--resume"],
+                     os.path.join(d, "train.log")))
+    t0 = time.time()
+    for name, (rc, wall) in _run_all(cmds, a.jobs).items():
+        print(f"{name}: rc {rc}, {wall:.0f} s", file=sys.stderr)
+        if rc != 0:
+            print(f"error: {name} failed (see its train.log)", file=sys.stderr)
+            return 1
+    train_wall = time.time() - t0
+    cmds = []
+    for (lam, s), d in runs.items():
+        res = os.path.join(d, "heldout.jsonl")
+        if not os.path.exists(res):
+            argv_ = [py, "-m", "training.evaluate", "--checkpoint", os.path.join(d, "checkpoint.npz"), "--out", res]
+            if (lam, s) == (lams[0], seeds[0]):
+                argv_.append("--heuristic")
+            cmds.append((f"evaluate lam={lam:g} seed={s}", argv_, os.path.join(d, "evaluate.log")))
+    for name, (rc, wall) in _run_all(cmds, a.jobs).items():
+        if rc != 0:
+            print(f"error: {name} failed", file=sys.stderr)
+            return 1
+    per_run, curves = [], {}
+    heur = None
+
+    def stats(rs):
+        return {"n": len(rs), "stable_fraction": float(np.mean([r["stable"] for r in rs])),
+                "mean_iou": float(np.mean([r["iou"] for r in rs])),
+                "mean_bricks": float(np.mean([r["n_bricks"] for r in rs]))}
+
+    for (lam, s), d in runs.items():
+        rows = _rows(os.path.join(d, "heldout.jsonl"))
+        h = [r for r in rows if r["method"] == "heuristic"]
+        if h:
+            heur = stats(h)
+        with open(os.path.join(d, "history.json")) as fh:
+            hj = json.load(fh)
+        rec = {"lam": lam, "seed": s, "train_wall_s": round(hj["wall_s"], 1), "steps": hj["config"]["steps"]}
+        for dec, method in DECODINGS.items():
+            rec[dec] = stats([r for r in rows if r["method"] == method])
+        per_run.append(rec)
+        curves[f"{lam:g}/{s}"] = hj["history"]
+    by_lam, target = {}, {}
+    for lam in lams:
+        rs = [r for r in per_run if r["lam"] == lam]
+        b = {"train_wall_s": float(np.mean([r["train_wall_s"] for r in rs]))}
+        for dec in DECODINGS:
+            b[dec] = {k: float(np.mean([r[dec][k] for r in rs])) for k in ("stable_fraction", "mean_iou", "mean_bricks")}
+            b[dec]["stable_fraction_per_seed"] = [r[dec]["stable_fraction"] for r in rs]
+            b[dec]["mean_iou_per_seed"] = [r[dec]["mean_iou"] for r in rs]
+        by_lam[f"{lam:g}"] = b
+    base, best = by_lam[f"{lams[0]:g}"], by_lam[f"{lams[-1]:g}"]
+    vs_heur = {}
+    for dec in DECODINGS:
+        gain = best[dec]["stable_fraction"] - base[dec]["stable_fraction"]
+        cost = base[dec]["mean_iou"] - best[dec]["mean_iou"]
+        target[dec] = {"stable_gain_pp": round(100 * gain, 1), "iou_cost": round(cost, 4),
+                       "met": bool(gain >= 0.20 and cost <= 0.02)}
+        if heur:
+            vs_heur[dec] = {"stable_gain_pp": round(100 * (best[dec]["stable_fraction"] - heur["stable_fraction"]), 1),
+                            "iou_cost": round(heur["mean_iou"] - best[dec]["mean_iou"], 4)}
+    out = {"config": os.path.relpath(a.config, REPO), "lams": lams, "seeds": seeds, "decodings": DECODINGS,
+           "per_run": per_run, "by_lambda": by_lam, "heuristic": heur, "target": target, "vs_heuristic": vs_heur,
+           "wall_s_training_this_invocation": round(train_wall, 1), "machine": "2-core x86_64 CPU, no GPU"}
+    os.makedirs(a.results, exist_ok=True)
+    tmp = os.path.join(a.results, "training.json.tmp")
+    with open(tmp, "w") as fh:
+        json.dump(out, fh, indent=1)
+    os.replace(tmp, os.path.join(a.results, "training.json"))
+    _plot(curves, lams, seeds, os.path.join(a.results, "training_curves.png"))
+    print("| generator | seed | strict: stable | strict: IoU | filled: stable | filled: IoU | bricks (filled) | train wall (s) |")
+    print("|---|---|---|---|---|---|---|---|")
+    for r in per_run:
+        print(f"| lambda={r['lam']:g} | {r['seed']} | {r['strict']['stable_fraction']:.3f} | {r['strict']['mean_iou']:.4f} | "
+              f"{r['filled']['stable_fraction']:.3f} | {r['filled']['mean_iou']:.4f} | {r['filled']['mean_bricks']:.1f} | "
+              f"{r['train_wall_s']:.0f} |")
+    for lam in lams:
+        b = by_lam[f"{lam:g}"]
+        print(f"| **lambda={lam:g}, mean** | {len(seeds)} seeds | **{b['strict']['stable_fraction']:.3f}** | "
+              f"**{b['strict']['mean_iou']:.4f}** | **{b['filled']['stable_fraction']:.3f}** | "
+              f"**{b['filled']['mean_iou']:.4f}** | {b['filled']['mean_bricks']:.1f} | {b['train_wall_s']:.0f} |")
+    if heur:
+        print(f"| merge heuristic | - | - | - | {heur['stable_fraction']:.3f} | {heur['mean_iou']:.4f} | "
+              f"{heur['mean_bricks']:.1f} | - |")
+    print()
+    for dec in DECODINGS:
+        t = target[dec]
+        print(f"{dec} decoding: stability term {t['stable_gain_pp']:+.1f} pp stable, IoU cost {t['iou_cost']:.4f}: "
+              f"target (>= +20 pp, <= 0.02 IoU) {'MET' if t['met'] else 'NOT MET'}")
+        if dec in vs_heur:
+            v = vs_heur[dec]
+            print(f"  vs merge heuristic: {v['stable_gain_pp']:+.1f} pp stable, IoU cost {v['iou_cost']:.4f}")
+    return 0
+
+
+def _plot(curves, lams, seeds, path):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    keys = [("fidelity", "fidelity (sum of (coverage-1)^2)"), ("stability", "stability loss (mean per shape)"),
+            ("heldout_stable", "held-out stable fraction, strict (exact)"), ("heldout_iou", "held-out IoU, strict"),
+            ("heldout_stable_filled", "held-out stable fraction, filled (exact)")]
+    fig, axes = plt.subplots(1, 5, figsize=(22, 4))
+    colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    for i, lam in enumerate(lams):
+        for j, s in enumerate(seeds):
+            h = curves.get(f"{lam:g}/{s}", [])
+            for ax, (k, title) in zip(axes, keys):
+                pts = [(e["step"], e[k]) for e in h if k in e]
+                if pts:
+                    x, y = zip(*pts)
+                    ax.plot(x, y, color=colours[i % len(colours)], alpha=0.8, ls=["-", "--", ":"][j % 3],
+                            label=f"lambda={lam:g} seed {s}")
+                ax.set_title(title, fontsize=9)
+                ax.set_xlabel("step")
+    axes[0].set_yscale("log")
+    axes[1].set_yscale("symlog", linthresh=1e-3)
+    axes[-1].legend(fontsize=7)
+    fig.tight_layout()
+    tmp = path + ".tmp.png"
+    fig.savefig(tmp, dpi=90)
+    os.replace(tmp, path)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

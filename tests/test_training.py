@@ -1,0 +1,123 @@
+"""Training a generator with the stability loss (training/)."""
+import json
+import os
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from stablelego_jax.repair import one_blas_thread
+from stablelego_jax.soft import stack_soft
+from training import net
+from training import train as T
+from training.shapes import procedural_shape
+
+TINY = {"n_procedural": 6, "mesh_dir": None, "steps": 4, "batch": 2, "n_pad": 16, "m_pad": 512, "p_pad": 32,
+        "competitors": 4, "random_competitors": 2, "checkpoint_every": 2, "eval_every": 100, "eval_train": 2,
+        "eval_heldout": False, "log_every": 1, "width": 8, "lam": 50.0, "lr": 0.01}
+
+
+def _cfg(tmp_path, **kw):
+    path = tmp_path / "cfg.json"
+    path.write_text(json.dumps(dict(TINY, **kw)))
+    return T.load_config(str(path))
+
+
+def _batch(cfg, kinds=("cantilever", "tee")):
+    shapes = [procedural_shape(i, kind=k) for i, k in enumerate(kinds)]
+    return T.Arrays(shapes, cfg["crop"], cfg["grid"])
+
+
+def test_loss_decreases_and_stability_gradient_reaches_params(tmp_path):
+    cfg = _cfg(tmp_path)
+    probs_fn, step_fn, opt, terms, grad_fn = T.make_fns(cfg)
+    arr = _batch(cfg)
+    params = net.init_params(jax.random.PRNGKey(0), cfg["width"], tuple(cfg["dilations"]), cfg["out_bias"])
+    rng = np.random.default_rng(0)
+    with one_blas_thread():
+        p = np.asarray(probs_fn(params, arr.x, arr.valid))
+        sub = [T.select_subset(p[j], arr.valid[j], cfg, rng) for j in range(2)]
+        fi, mask = np.stack([s[0] for s in sub]), np.stack([s[1] for s in sub])
+        prob = stack_soft([s[2] for s in sub])
+        args = (arr.x, arr.valid, arr.target, fi, mask, prob)
+        # the stability term's gradient reaches every layer of the generator:
+        # grad(total at lam) - grad(total at lam = 0) = grad(lam * stability)
+        lam, bw = np.float64(cfg["lam"]), np.float64(0.1)
+        _, aux, g1 = grad_fn(params, lam, bw, *args)
+        _, _, g0 = grad_fn(params, np.float64(0.0), bw, *args)
+        assert float(aux[2]) > 0.0
+        g = jax.tree_util.tree_map(lambda a, b: a - b, g1, g0)
+        for w, b in g:
+            assert np.isfinite(np.asarray(w)).all() and np.isfinite(np.asarray(b)).all()
+            assert float(jnp.abs(w).sum()) > 0.0
+        # a few steps on a fixed batch and subset lower the total loss
+        opt_state = opt.init(params)
+        losses = []
+        for _ in range(10):
+            params, opt_state, loss, _ = step_fn(params, opt_state, lam, bw, *args)
+            losses.append(float(loss))
+    assert np.isfinite(losses).all()
+    assert losses[-1] < 0.8 * losses[0]
+
+
+def test_crop_equals_full_grid():
+    s = procedural_shape(3, kind="bridge")
+    params = net.init_params(jax.random.PRNGKey(1), 8)
+    full = np.asarray(net.apply(params, net.features(s.vox)[None]))[0]
+    c, o = net.crop(s.vox, (10, 10, 6))
+    part = np.asarray(net.apply(params, net.features(c)[None]))[0]
+    xs, ys, zs = np.nonzero(c)
+    np.testing.assert_allclose(part[xs, ys, zs], full[xs + o[0], ys + o[1], zs], atol=1e-5)
+    assert np.abs(part[xs, ys, zs]).max() > 0
+
+
+def test_decoding_never_overlaps_and_stays_inside():
+    rng = np.random.default_rng(0)
+    for seed in range(6):
+        c, _ = net.crop(procedural_shape(seed).vox, (10, 10, 6))
+        valid = net.valid_placements(c)
+        p = np.where(valid, rng.random(valid.shape), 0.0)
+        for thr in (0.05, 0.5, 0.95):
+            idx, pos, size = net.decode(p, thr)
+            count = np.zeros(c.shape, int)
+            for (x, y, z), (sx, sy) in zip(pos.tolist(), size.tolist()):
+                count[x:x + sx, y:y + sy, z] += 1
+            assert count.max() <= 1 and not (count.astype(bool) & ~c).any()
+            assert (p[tuple(idx.T)] >= thr).all()
+            iou = net.decoded_iou(c, pos, size)
+            assert np.isclose(iou, count.sum() / c.sum())
+        # the soft coverage of a 0/1 decoding is its cell count
+        q = np.zeros_like(p)
+        q[tuple(idx.T)] = 1.0
+        np.testing.assert_allclose(np.asarray(net.coverage(jnp.asarray(q[None])))[0], count)
+
+
+def test_checkpoint_resume_continues_exactly(tmp_path):
+    cfg = _cfg(tmp_path)
+    p_full, h_full = T.train(cfg, str(tmp_path / "a"), log=open(os.devnull, "w"))
+    T.train(cfg, str(tmp_path / "b"), log=open(os.devnull, "w"), max_steps=2)
+    z = np.load(tmp_path / "b" / "checkpoint.npz")
+    assert int(z["step"]) == 2 and "param_0" in z.files and "opt_0" in z.files
+    p_res, h_res = T.train(cfg, str(tmp_path / "b"), resume=True, log=open(os.devnull, "w"))
+    for (w1, b1), (w2, b2) in zip(p_full, p_res):
+        np.testing.assert_array_equal(np.asarray(w1), np.asarray(w2))
+        np.testing.assert_array_equal(np.asarray(b1), np.asarray(b2))
+    assert [h["loss"] for h in h_full if "loss" in h] == [h["loss"] for h in h_res if "loss" in h]
+
+
+def test_bad_config_names_the_file(tmp_path, capsys):
+    missing = str(tmp_path / "nope.json")
+    assert T.main(["--config", missing, "--out", str(tmp_path / "o")]) == 2
+    assert "nope.json" in capsys.readouterr().err
+    bad = tmp_path / "bad.json"
+    bad.write_text(json.dumps({"stepz": 3}))
+    with pytest.raises(T.ConfigError, match="bad.json.*unknown config key 'stepz'"):
+        T.load_config(str(bad))
+    bad.write_text(json.dumps({"steps": "many"}))
+    with pytest.raises(T.ConfigError, match="'steps' must be int"):
+        T.load_config(str(bad))
+    bad.write_text("{not json")
+    assert T.main(["--config", str(bad)]) == 2
+    assert "bad.json" in capsys.readouterr().err
+    assert not (tmp_path / "o").exists()
