@@ -569,6 +569,13 @@ def _ipm(ctx: _Ctx, opts: LossOptions):
         _, outs = jax.lax.scan(phase, zero, None, length=2)
         dx, dr, ds, dz, step = jax.tree_util.tree_map(lambda a: a[1], outs)
         step = jnp.minimum(1.0, 0.99 * step)
+        # safeguard: a step that multiplies the complementarity gap (rounding
+        # in a near-singular system, e.g. contacts between absent bricks) is
+        # shortened, by 4x at a time, until the gap at most doubles
+        def grows(st):
+            return mean_gap(_axpy(st, ds, s), _axpy(st, dz, z)) > 2.0 * jnp.maximum(mu, opts.mu)
+        for _ in range(6):
+            step = jnp.where(grows(step), 0.25 * step, step)
         return _axpy(step, dx, x), r + step * dr, _axpy(step, ds, s), _axpy(step, dz, z)
 
     (x, r, s, z), _, _ = jax.lax.while_loop(lambda c: (~c[1]) & (c[2] < opts.iters), body,
