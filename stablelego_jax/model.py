@@ -143,6 +143,21 @@ def bucket_size(k: int, base: int = 8, growth: float = 1.25) -> int:
     return b
 
 
+def normal_groups(col_brick: np.ndarray, col_kind: np.ndarray, n: int) -> np.ndarray:
+    """(n, P) int32 table of the NORMAL columns on each brick's bottom (``m`` = none)."""
+    m = len(col_kind)
+    normal = np.nonzero(col_kind == NORMAL)[0]
+    owner = col_brick[normal, 0]
+    order = np.argsort(owner, kind="stable")
+    normal, owner = normal[order], owner[order]
+    counts = np.bincount(owner, minlength=n)
+    P = max(int(counts.max()) if counts.size else 1, 1)
+    slot = np.arange(len(owner)) - np.repeat(np.cumsum(counts) - counts, counts)
+    group = np.full((n, P), m, np.int32)
+    group[owner, slot] = normal
+    return group
+
+
 def compile_layout(layout: Layout, params: Params = Params()) -> ForceModel:
     """Build the force model of ``layout`` (vectorised numpy, no brick loops)."""
     L, Hl = params.stud, params.layer
@@ -164,9 +179,9 @@ def compile_layout(layout: Layout, params: Params = Params()) -> ForceModel:
     kx, ky = (cx[conn] + 0.5) * L, (cy[conn] + 0.5) * L  # knob centre (m)
     kz = cz[conn] * Hl  # interface plane (m)
 
-    cols_brick, cols_coef, cols_kind, cols_group = [], [], [], []
+    cols_brick, cols_coef, cols_kind = [], [], []
 
-    def add(bricks_pair, forces, points, kind, group):
+    def add(bricks_pair, forces, points, kind):
         # forces: (k, 3) unit force on slot 0 (slot 1 gets the opposite); points (k, 3) m
         c0 = centre[bricks_pair[:, 0]]
         c1 = np.where(bricks_pair[:, 1:2] < n, centre[np.minimum(bricks_pair[:, 1], n - 1)], 0.0)
@@ -176,7 +191,6 @@ def compile_layout(layout: Layout, params: Params = Params()) -> ForceModel:
         cols_brick.append(bricks_pair)
         cols_coef.append(np.stack([w0, w1], axis=1))
         cols_kind.append(np.full(len(forces), kind, np.int8))
-        cols_group.append(group)
 
     pair = np.stack([c_up, c_lo], axis=1)
     thin = size[c_up].min(axis=1) < 2
@@ -194,12 +208,12 @@ def compile_layout(layout: Layout, params: Params = Params()) -> ForceModel:
         ).reshape(k * p, 3)
         bp = np.repeat(pair[sel], p, axis=0)
         up = np.tile([0.0, 0.0, 1.0], (k * p, 1))
-        add(bp, up, pts, NORMAL, bp[:, 0])
+        add(bp, up, pts, NORMAL)
     knob_pts = np.stack([kx, ky, kz], axis=1)
     for axis in (0, 1):
         f = np.zeros((len(c_up), 3))
         f[:, axis] = 1.0
-        add(pair, f, knob_pts, KNOB, np.full(len(c_up), -1))
+        add(pair, f, knob_pts, KNOB)
 
     # --- side presses between neighbouring cells of different bricks in one layer
     for axis in (0, 1):
@@ -215,24 +229,15 @@ def compile_layout(layout: Layout, params: Params = Params()) -> ForceModel:
         face[:, axis] += 0.5 * L
         f = np.zeros((len(a), 3))
         f[:, axis] = 1.0
-        add(np.stack([b, a], axis=1), f, face, SIDE, np.full(len(a), -1))
+        add(np.stack([b, a], axis=1), f, face, SIDE)
 
     col_brick = np.concatenate(cols_brick).astype(np.int32)
     col_coef = np.concatenate(cols_coef)
     col_kind = np.concatenate(cols_kind)
-    grp_owner = np.concatenate(cols_group)
     m = len(col_kind)
 
     # per-brick table of the NORMAL columns on its bottom
-    normal_cols = np.nonzero(col_kind == NORMAL)[0]
-    go = grp_owner[normal_cols]
-    order = np.argsort(go, kind="stable")
-    normal_cols, go = normal_cols[order], go[order]
-    counts = np.bincount(go, minlength=n)
-    P = max(int(counts.max()) if counts.size else 1, 1)
-    slot = np.arange(len(go)) - np.repeat(np.cumsum(counts) - counts, counts)
-    group = np.full((n, P), m, np.int32)
-    group[go, slot] = normal_cols
+    group = normal_groups(col_brick, col_kind, n)
 
     gravity = np.zeros((n, 6))
     gravity[:, 2] = -layout.mass * params.g

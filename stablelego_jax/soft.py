@@ -38,7 +38,7 @@ from typing import NamedTuple, Sequence
 import numpy as np
 
 from .layout import TABLE_I_MASS_KG, Layout, LayoutError, make_layout
-from .model import KNOB, NORMAL, ForceModel, Params, bucket_size, compile_layout
+from .model import KNOB, NORMAL, ForceModel, Params, bucket_size, compile_layout, normal_groups
 
 __all__ = [
     "Candidate",
@@ -290,7 +290,7 @@ def compile_soft(layout: Layout, candidates: Sequence[Candidate] = (), params: P
     col_coef = np.concatenate(cols_c)
     col_kind = np.concatenate(cols_k).astype(np.int8)
     m = len(col_kind)
-    group = _normal_groups(col_brick, col_kind, n)
+    group = normal_groups(col_brick, col_kind, n)
     prob = SoftProblem(
         col_brick=col_brick,
         col_coef=col_coef.astype(np.float64),
@@ -305,21 +305,6 @@ def compile_soft(layout: Layout, candidates: Sequence[Candidate] = (), params: P
         base=layout, candidates=tuple(candidates), problem=prob, params=params,
         unit_bricks=unit_bricks, unit_index=np.asarray(unit_index, np.int64),
     )
-
-
-def _normal_groups(col_brick: np.ndarray, col_kind: np.ndarray, n: int) -> np.ndarray:
-    """(n, P) int32 table of the NORMAL columns on each brick's bottom (``m`` = none)."""
-    m = len(col_kind)
-    normal = np.nonzero(col_kind == NORMAL)[0]
-    owner = col_brick[normal, 0]
-    order = np.argsort(owner, kind="stable")
-    normal, owner = normal[order], owner[order]
-    counts = np.bincount(owner, minlength=n)
-    P = max(int(counts.max()) if counts.size else 1, 1)
-    slot = np.arange(len(owner)) - np.repeat(np.cumsum(counts) - counts, counts)
-    group = np.full((n, P), m, np.int32)
-    group[owner, slot] = normal
-    return group
 
 
 def placement_pairs(pos, size):
@@ -404,7 +389,7 @@ def compile_placements(pos, size, mass, params: Params = Params()) -> SoftProble
         col_brick, col_coef, col_kind = np.zeros((0, 2), np.int32), np.zeros((0, 2, 6)), np.zeros(0, np.int8)
     return SoftProblem(
         col_brick=col_brick, col_coef=col_coef, col_kind=col_kind,
-        col_mask=np.ones(len(col_kind), bool), group=_normal_groups(col_brick, col_kind, k),
+        col_mask=np.ones(len(col_kind), bool), group=normal_groups(col_brick, col_kind, k),
         mass=mass, brick_mask=np.ones(k, bool), unit=np.arange(k, dtype=np.int32),
     )
 
