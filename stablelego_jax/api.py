@@ -8,6 +8,7 @@ import time
 import jax
 import numpy as np
 
+from .blas import one_blas_thread
 from .exact import solve_exact
 from .io import load_layout
 from .layout import Layout, LayoutError, Library
@@ -164,8 +165,9 @@ def analyze_layout(
         raise ValueError(f"unknown solver {solver!r} (expected 'jax', 'admm' or 'exact')")
     if solver == "admm" and not isinstance(opts, SolverOptions):
         opts = SolverOptions()
-    sol, padded = solve_jax(model, opts)
-    f = np.asarray(sol.f)
+    with one_blas_thread():  # JAX's CPU LAPACK goes through OpenBLAS (see blas.py)
+        sol, padded = solve_jax(model, opts)
+        f = np.asarray(sol.f)
     return _finish(
         layout, padded, f, solver, bool(sol.converged), t0,
         iters=int(sol.iters), gap=float(sol.gap), objective=float(sol.objective),

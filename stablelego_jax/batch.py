@@ -29,6 +29,7 @@ import jax
 import numpy as np
 
 from .api import _finish, error_message
+from .blas import one_blas_thread
 from .exact import solve_exact
 from .io import atomic_write, atomic_write_text, load_layout
 from .model import Params, bucket_size, compile_layout
@@ -170,7 +171,15 @@ def _write_score_grid(path: str, layout, scores) -> None:
     atomic_write(os.path.join(path, "stability_score.npy"), lambda fh: np.save(fh, grid), binary=True)
 
 
-def score_files(
+def score_files(*args, **kwargs) -> "ScoreStats":
+    """Score every layout of ``inputs`` into the JSON-lines file ``out``
+    (arguments: :func:`_score_files`), with one OpenBLAS thread
+    (:mod:`~stablelego_jax.blas`: JAX's CPU LAPACK calls go through it)."""
+    with one_blas_thread():
+        return _score_files(*args, **kwargs)
+
+
+def _score_files(
     inputs: Sequence[str],
     out: str,
     solver: str = "jax",

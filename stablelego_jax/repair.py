@@ -33,7 +33,6 @@ order, and every brick after it, until the layout stands).
 """
 from __future__ import annotations
 
-import contextlib
 import dataclasses
 import functools
 import time
@@ -43,6 +42,7 @@ import jax
 import numpy as np
 
 from .api import Analysis, analyze_layout
+from .blas import one_blas_thread  # noqa: F401  (re-exported: repair.one_blas_thread)
 from .layout import TABLE_I_MASS_KG, Layout, cells_of
 from .loss import LossOptions, stability_loss
 from .model import Params
@@ -387,43 +387,6 @@ def propose(layout: Layout, analysis: Analysis, opts: RepairOptions, budget: int
 
 # --------------------------------------------------------------------------
 # ranking by the gradient
-
-
-@contextlib.contextmanager
-def one_blas_thread():
-    """Run with one thread in SciPy's OpenBLAS (restored after): JAX's CPU
-    LAPACK calls go through it, and on a busy machine its spinning worker
-    threads make each small dense LU of the differentiable solver ~100x
-    slower (80 ms instead of 0.6 ms for 224 x 224 on a shared 2-core box)."""
-    lib = _openblas()
-    if lib is None:
-        yield
-        return
-    old = lib.scipy_openblas_get_num_threads()
-    lib.scipy_openblas_set_num_threads(1)
-    try:
-        yield
-    finally:
-        lib.scipy_openblas_set_num_threads(old)
-
-
-@functools.lru_cache(maxsize=1)
-def _openblas():
-    import ctypes
-    import glob
-    import os
-
-    import scipy
-
-    pattern = os.path.join(os.path.dirname(os.path.dirname(scipy.__file__)), "scipy.libs", "libscipy_openblas*.so*")
-    for path in glob.glob(pattern):
-        try:
-            lib = ctypes.CDLL(path)
-        except OSError:
-            continue
-        if hasattr(lib, "scipy_openblas_set_num_threads") and hasattr(lib, "scipy_openblas_get_num_threads"):
-            return lib
-    return None
 
 
 @functools.lru_cache(maxsize=None)

@@ -1,0 +1,53 @@
+"""One OpenBLAS thread for JAX's CPU linear algebra.
+
+JAX's CPU LAPACK kernels (Cholesky, LU, triangular solves) call SciPy's
+bundled OpenBLAS. Its worker threads spin while they wait, and on a busy
+machine they fight the other processes for the cores: a batch of the
+interior-point solver took 130 s instead of 10 s with two other busy
+processes on the 2-core box (BENCHMARKS.md), and each small dense LU of the
+differentiable loss ~100x longer. On a quiet machine one thread costs
+nothing measurable (XLA runs its own threads). :func:`one_blas_thread`
+sets the count to 1 for a block and restores it after; without SciPy's
+OpenBLAS (another build) it does nothing.
+"""
+from __future__ import annotations
+
+import contextlib
+import functools
+
+__all__ = ["one_blas_thread"]
+
+
+@contextlib.contextmanager
+def one_blas_thread():
+    """Context manager: one thread in SciPy's OpenBLAS inside, the previous
+    count restored after."""
+    lib = _openblas()
+    if lib is None:
+        yield
+        return
+    old = lib.scipy_openblas_get_num_threads()
+    lib.scipy_openblas_set_num_threads(1)
+    try:
+        yield
+    finally:
+        lib.scipy_openblas_set_num_threads(old)
+
+
+@functools.lru_cache(maxsize=1)
+def _openblas():
+    import ctypes
+    import glob
+    import os
+
+    import scipy
+
+    pattern = os.path.join(os.path.dirname(os.path.dirname(scipy.__file__)), "scipy.libs", "libscipy_openblas*.so*")
+    for path in glob.glob(pattern):
+        try:
+            lib = ctypes.CDLL(path)
+        except OSError:
+            continue
+        if hasattr(lib, "scipy_openblas_set_num_threads") and hasattr(lib, "scipy_openblas_get_num_threads"):
+            return lib
+    return None
