@@ -171,14 +171,6 @@ def _write_score_grid(path: str, layout, scores) -> None:
     atomic_write(os.path.join(path, "stability_score.npy"), lambda fh: np.save(fh, grid), binary=True)
 
 
-def score_files(*args, **kwargs) -> "ScoreStats":
-    """Score every layout of ``inputs`` into the JSON-lines file ``out``
-    (arguments: :func:`_score_files`), with one OpenBLAS thread
-    (:mod:`~stablelego_jax.blas`: JAX's CPU LAPACK calls go through it)."""
-    with one_blas_thread():
-        return _score_files(*args, **kwargs)
-
-
 def _score_files(
     inputs: Sequence[str],
     out: str,
@@ -197,7 +189,8 @@ def _score_files(
     stream=None,
     method: str = "ours",
 ) -> ScoreStats:
-    """Score every layout of ``inputs`` into the JSON-lines file ``out``.
+    """Score every layout of ``inputs`` into the JSON-lines file ``out``
+    (``score_files`` runs this with one OpenBLAS thread: :mod:`~stablelego_jax.blas`).
 
     solver: "jax" (batched interior point, :mod:`~stablelego_jax.ipm`),
     "admm" (batched first-order ADMM, :mod:`~stablelego_jax.solver`) or
@@ -351,3 +344,10 @@ def _score_files(
     bar.close()
     st.wall_s = time.perf_counter() - t_run
     return st
+
+
+@functools.wraps(_score_files)
+def score_files(*args, **kwargs) -> ScoreStats:
+    with one_blas_thread():
+        return _score_files(*args, **kwargs)
+
