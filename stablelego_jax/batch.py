@@ -350,4 +350,3 @@ def _score_files(
 def score_files(*args, **kwargs) -> ScoreStats:
     with one_blas_thread():
         return _score_files(*args, **kwargs)
-
