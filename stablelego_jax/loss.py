@@ -682,6 +682,27 @@ def solve_soft(weights, loads, prob: SoftProblem, opts: LossOptions = LossOption
                         converged=res <= opts.tol, opt_res=res)
 
 
+def _brick_loss(ctx: _Ctx, x, rho, tau, opts: LossOptions):
+    s = opts.residual_smoothing
+    resid = (ctx.cost * (jnp.sqrt(rho * rho + s * s) - s)).sum(axis=1)
+    hinge = tau * jax.nn.softplus((x[2] - 1.0) / tau)
+    return ctx.om * (hinge + resid)
+
+
+def _fail_prob(ctx: _Ctx, x, rho, tau, opts: LossOptions):
+    p = jax.nn.sigmoid((x[2] - 1.0) / tau)
+    return jnp.where(ctx.om > 0, jnp.where(_residual_bad(rho, opts.params), 1.0, p), 0.0)
+
+
+def _scores(ctx: _Ctx, phi, rho, opts: LossOptions):
+    d = jnp.where(ctx.normal, jnp.maximum(-phi, 0.0) * ctx.o0, 0.0)
+    dm = _ext(d)[ctx.group].max(axis=1)
+    bad = _residual_bad(rho, opts.params)
+    present = ctx.om > 0
+    score = jnp.where(present, jnp.where(bad | (dm >= 1.0), 1.0, dm), 0.0)
+    return score, dm * opts.params.T, bad & present
+
+
 def brick_loss(weights, loads, prob: SoftProblem, temperature: float | None = None,
                opts: LossOptions = LossOptions()):
     """Per-brick loss (n,): ``w_b [tau softplus((t_b - 1)/tau) + E_b]`` with t_b
@@ -690,11 +711,7 @@ def brick_loss(weights, loads, prob: SoftProblem, temperature: float | None = No
     ``opts.temperature``. Padding and absent bricks give 0."""
     tau = opts.temperature if temperature is None else temperature
     ctx, x, _ = _terms(weights, loads, prob, opts)
-    s = opts.residual_smoothing
-    rho = _rho(ctx, _phi(x, ctx))
-    resid = (ctx.cost * (jnp.sqrt(rho * rho + s * s) - s)).sum(axis=1)
-    hinge = tau * jax.nn.softplus((x[2] - 1.0) / tau)
-    return ctx.om * (hinge + resid)
+    return _brick_loss(ctx, x, _rho(ctx, _phi(x, ctx)), tau, opts)
 
 
 def stability_loss(weights, loads, prob: SoftProblem, temperature: float | None = None,
@@ -716,9 +733,7 @@ def fail_prob(weights, loads, prob: SoftProblem, temperature: float | None = Non
     ``tau -> 0``. Absent and padding bricks give 0."""
     tau = opts.temperature if temperature is None else temperature
     ctx, x, _ = _terms(weights, loads, prob, opts)
-    rho = _rho(ctx, _phi(x, ctx))
-    p = jax.nn.sigmoid((x[2] - 1.0) / tau)
-    return jnp.where(ctx.om > 0, jnp.where(_residual_bad(rho, opts.params), 1.0, p), 0.0)
+    return _fail_prob(ctx, x, _rho(ctx, _phi(x, ctx)), tau, opts)
 
 
 def soft_scores(weights, loads, prob: SoftProblem, opts: LossOptions = LossOptions()):
@@ -730,13 +745,7 @@ def soft_scores(weights, loads, prob: SoftProblem, opts: LossOptions = LossOptio
     """
     ctx, x, _ = _terms(weights, loads, prob, opts)
     phi = _phi(x, ctx)
-    d = jnp.where(ctx.normal, jnp.maximum(-phi, 0.0) * ctx.o0, 0.0)
-    dm = _ext(d)[ctx.group].max(axis=1)
-    rho = _rho(ctx, phi)
-    bad = _residual_bad(rho, opts.params)
-    score = jnp.where(bad | (dm >= 1.0), 1.0, dm)
-    present = ctx.om > 0
-    return jnp.where(present, score, 0.0), dm * opts.params.T, bad & present
+    return _scores(ctx, phi, _rho(ctx, phi), opts)
 
 
 class SoftReport(NamedTuple):
@@ -757,14 +766,7 @@ def soft_report(weights, loads, prob: SoftProblem, temperature=None, opts: LossO
     ctx, x, aux = _terms(weights, loads, prob, opts)
     phi = _phi(x, ctx)
     rho = _rho(ctx, phi)
-    s = opts.residual_smoothing
-    resid = (ctx.cost * (jnp.sqrt(rho * rho + s * s) - s)).sum(axis=1)
-    bl = ctx.om * (tau * jax.nn.softplus((x[2] - 1.0) / tau) + resid)
-    bad = _residual_bad(rho, opts.params)
-    present = ctx.om > 0
-    fp = jnp.where(present, jnp.where(bad, 1.0, jax.nn.sigmoid((x[2] - 1.0) / tau)), 0.0)
-    d = jnp.where(ctx.normal, jnp.maximum(-phi, 0.0) * ctx.o0, 0.0)
-    dm = _ext(d)[ctx.group].max(axis=1)
-    score = jnp.where(present, jnp.where(bad | (dm >= 1.0), 1.0, dm), 0.0)
-    return SoftReport(brick_loss=bl, fail_prob=fp, scores=score, max_drag=dm * opts.params.T,
-                      residual_bad=bad & present, converged=jax.lax.stop_gradient(aux[2]) <= opts.tol)
+    score, max_drag, bad = _scores(ctx, phi, rho, opts)
+    return SoftReport(brick_loss=_brick_loss(ctx, x, rho, tau, opts), fail_prob=_fail_prob(ctx, x, rho, tau, opts),
+                      scores=score, max_drag=max_drag, residual_bad=bad,
+                      converged=jax.lax.stop_gradient(aux[2]) <= opts.tol)
