@@ -26,6 +26,9 @@ import numpy as np
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 REPO = os.path.dirname(HERE)
+sys.path.insert(0, REPO)
+
+from stablelego_jax.io import atomic_write, atomic_write_text  # noqa: E402
 
 
 #: decoding name -> evaluate's method name (see training.evaluate)
@@ -140,10 +143,7 @@ def main(argv=None) -> int:
            "per_run": per_run, "by_lambda": by_lam, "heuristic": heur, "target": target, "vs_heuristic": vs_heur,
            "wall_s_training_this_invocation": round(train_wall, 1), "machine": "2-core x86_64 CPU, no GPU"}
     os.makedirs(a.results, exist_ok=True)
-    tmp = os.path.join(a.results, "training.json.tmp")
-    with open(tmp, "w") as fh:
-        json.dump(out, fh, indent=1)
-    os.replace(tmp, os.path.join(a.results, "training.json"))
+    atomic_write_text(os.path.join(a.results, "training.json"), json.dumps(out, indent=1))
     _plot(curves, lams, seeds, os.path.join(a.results, "training_curves.png"))
     print("| generator | seed | strict: stable | strict: IoU | filled: stable | filled: IoU | bricks (filled) | train wall (s) |")
     print("|---|---|---|---|---|---|---|---|")
@@ -196,9 +196,7 @@ def _plot(curves, lams, seeds, path):
     axes[1].set_yscale("symlog", linthresh=1e-3)
     axes[-1].legend(fontsize=7)
     fig.tight_layout()
-    tmp = path + ".tmp.png"
-    fig.savefig(tmp, dpi=90)
-    os.replace(tmp, path)
+    atomic_write(path, lambda fh: fig.savefig(fh, format="png", dpi=90), binary=True)
 
 
 if __name__ == "__main__":

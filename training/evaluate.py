@@ -25,6 +25,8 @@ import time
 
 import numpy as np
 
+from stablelego_jax.io import atomic_write_text
+
 
 def evaluate(ckpt: str, split: str = "heldout", heuristic: bool = False) -> list[dict]:
     """Rows (one per shape and method) for the checkpoint ``ckpt``."""
@@ -35,7 +37,7 @@ def evaluate(ckpt: str, split: str = "heldout", heuristic: bool = False) -> list
     shapes = held if split == "heldout" else train_shapes
     arr = Arrays(shapes, cfg["crop"], cfg["grid"])
     probs_fn = make_fns(cfg)[0]
-    from stablelego_jax.repair import one_blas_thread
+    from stablelego_jax.blas import one_blas_thread
 
     rows = []
     for method, fill in (("generator", False), ("generator_filled", True)):
@@ -83,11 +85,7 @@ def main(argv=None) -> int:
         return 2
     d = os.path.dirname(os.path.abspath(a.out))
     os.makedirs(d, exist_ok=True)
-    tmp = a.out + ".tmp"
-    with open(tmp, "w") as fh:
-        for r in rows:
-            fh.write(json.dumps(r) + "\n")
-    os.replace(tmp, a.out)
+    atomic_write_text(a.out, "".join(json.dumps(r) + "\n" for r in rows))
     for m, s in summary(rows).items():
         print(f"{m}: {s['n']} {a.split} shapes, stable {s['stable_fraction']:.3f}, mean IoU {s['mean_iou']:.4f}")
     print(f"wrote {a.out} ({time.perf_counter() - t0:.1f} s)", file=sys.stderr)

@@ -15,7 +15,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from stablelego_jax.layout import TABLE_I_MASS_KG
+from stablelego_jax.layout import TABLE_I_MASS_KG, cells_of
 
 __all__ = ["TYPES", "MASS", "features", "crop", "valid_placements", "init_params", "apply", "probabilities",
            "coverage", "window_max", "existence_weights", "spanning_placements", "decode", "decoded_iou"]
@@ -58,20 +58,27 @@ def crop(vox: np.ndarray, size) -> tuple[np.ndarray, np.ndarray]:
     return out, o
 
 
-def valid_placements(vox: np.ndarray) -> np.ndarray:
-    """(G, G, G, K) bool: placement (cell, type) lies inside the shape
-    (every cell of its window occupied)."""
-    vox = np.asarray(vox, bool)
+def _window_sums(vox: np.ndarray) -> np.ndarray:
+    """(X, Y, Z, K) int: the number of occupied cells of ``vox`` in each
+    placement's window (summed-area table per layer; windows past the grid: 0)."""
     X, Y, Z = vox.shape
     c = np.zeros((X + 1, Y + 1, Z), np.int64)
     c[1:, 1:] = vox.astype(np.int64).cumsum(0).cumsum(1)
-    out = np.zeros((X, Y, Z, len(TYPES)), bool)
+    out = np.zeros((X, Y, Z, len(TYPES)), np.int64)
     for k, (sx, sy) in enumerate(TYPES):
-        if sx > X or sy > Y:
-            continue
-        s = c[sx:, sy:] - c[:-sx, sy:] - c[sx:, :-sy] + c[:-sx, :-sy]  # window sums
-        out[: X - sx + 1, : Y - sy + 1, :, k] = s == sx * sy
+        if sx <= X and sy <= Y:
+            out[: X - sx + 1, : Y - sy + 1, :, k] = c[sx:, sy:] - c[:-sx, sy:] - c[sx:, :-sy] + c[:-sx, :-sy]
     return out
+
+
+def _area() -> np.ndarray:
+    return np.array([sx * sy for sx, sy in TYPES])
+
+
+def valid_placements(vox: np.ndarray) -> np.ndarray:
+    """(G, G, G, K) bool: placement (cell, type) lies inside the shape
+    (every cell of its window occupied)."""
+    return _window_sums(np.asarray(vox, bool)) == _area()
 
 
 def init_params(key, width: int = 16, dilations=(1, 2, 4, 1), out_bias: float = -2.0):
@@ -173,17 +180,8 @@ def spanning_placements(vox: np.ndarray) -> np.ndarray:
     vox = np.asarray(vox, bool)
     held = vox.copy()
     held[:, :, 1:] &= vox[:, :, :-1]
-    a = valid_placements(vox)
-    X, Y, Z = vox.shape
-    c = np.zeros((X + 1, Y + 1, Z), np.int64)
-    c[1:, 1:] = held.astype(np.int64).cumsum(0).cumsum(1)
-    out = np.zeros_like(a)
-    for k, (sx, sy) in enumerate(TYPES):
-        if sx > X or sy > Y:
-            continue
-        s = c[sx:, sy:] - c[:-sx, sy:] - c[sx:, :-sy] + c[:-sx, :-sy]
-        out[: X - sx + 1, : Y - sy + 1, :, k] = (s > 0) & (s < sx * sy)
-    return a & out
+    s = _window_sums(held)
+    return valid_placements(vox) & (s > 0) & (s < _area())
 
 
 def decode(prob: np.ndarray, threshold: float = 0.5, fill: bool = False):
@@ -219,8 +217,8 @@ def decode(prob: np.ndarray, threshold: float = 0.5, fill: bool = False):
 def decoded_iou(vox: np.ndarray, pos: np.ndarray, size: np.ndarray) -> float:
     """Shape IoU of decoded bricks against the target ``vox`` (bool grid)."""
     occ = np.zeros(vox.shape, bool)
-    for (x, y, z), (sx, sy) in zip(np.asarray(pos).tolist(), np.asarray(size).tolist()):
-        occ[x:x + sx, y:y + sy, z] = True
+    cells, _ = cells_of(np.asarray(pos, np.int64).reshape(-1, 3), np.asarray(size, np.int64).reshape(-1, 2))
+    occ[tuple(cells.T)] = True
     inter = (occ & vox).sum()
     union = (occ | vox).sum()
     return float(inter / union) if union else 1.0

@@ -35,6 +35,8 @@ import time
 
 import numpy as np
 
+from stablelego_jax.io import atomic_write, atomic_write_text
+
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 DEFAULTS = {
@@ -300,9 +302,7 @@ def save_checkpoint(path: str, params, opt_state, step: int, rng: np.random.Gene
     arrs["rng_state"] = np.asarray(json.dumps(rng.bit_generator.state))
     arrs["config"] = np.asarray(json.dumps(cfg))
     arrs["history"] = np.asarray(json.dumps(history))
-    tmp = path + ".tmp.npz"
-    np.savez(tmp, **arrs)
-    os.replace(tmp, path)
+    atomic_write(path, lambda fh: np.savez(fh, **arrs), binary=True)
 
 
 def load_checkpoint(path: str, cfg: dict | None = None):
@@ -386,7 +386,7 @@ def train(cfg: dict, out: str, resume: bool = False, log=sys.stderr, max_steps: 
     call, for tests of resuming."""
     import jax
 
-    from stablelego_jax.repair import one_blas_thread
+    from stablelego_jax.blas import one_blas_thread
     from . import net
 
     os.makedirs(out, exist_ok=True)
@@ -474,10 +474,8 @@ def main(argv=None) -> int:
     except ConfigError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
-    tmp = os.path.join(out, "history.json.tmp")
-    with open(tmp, "w") as fh:
-        json.dump({"config": cfg, "history": history, "wall_s": time.perf_counter() - t0}, fh, indent=1)
-    os.replace(tmp, os.path.join(out, "history.json"))
+    atomic_write_text(os.path.join(out, "history.json"),
+                      json.dumps({"config": cfg, "history": history, "wall_s": time.perf_counter() - t0}, indent=1))
     print(f"done: {out}/checkpoint.npz ({time.perf_counter() - t0:.1f} s)", file=sys.stderr)
     return 0
 
