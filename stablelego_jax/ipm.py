@@ -34,7 +34,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .model import NORMAL, SIDE, ForceModel, Params
+from .model import NORMAL, SIDE, ForceModel, Params, bucket_size
 from .solver import Problem, Solution, _ops, _solution
 
 __all__ = ["IPMOptions", "solve", "layer_plan", "layer_bucket", "to_layered", "layered_problem", "solve_plan",
@@ -141,8 +141,6 @@ def solve_plan(model: ForceModel) -> tuple:
     whichever factorises more cheaply (the block-tridiagonal form costs
     ~3 L (6 B)^3 flops, the dense one (6 n)^3 / 3); layouts of up to 48
     bricks stay dense (one small factor beats a scan over layers)."""
-    from .model import bucket_size
-
     n_b = bucket_size(model.n)
     Lp, Bp = layer_bucket(*layer_plan(model))
     if n_b > 48 and Lp > 1 and 3 * Lp * Bp ** 3 < n_b ** 3 / 3:

@@ -360,7 +360,7 @@ def compile_placements(pos, size, mass, params: Params = Params()) -> SoftProble
           np.tile([1, 2], (len(vert), 1)), np.ones((len(side), 2))]
     mem = np.concatenate(members).astype(np.int64)
     zsl = np.concatenate(zs).astype(np.int64)
-    cols_b, cols_c, cols_k = [], [], []
+    col_brick, col_coef, col_kind = np.zeros((0, 2), np.int32), np.zeros((0, 2, 6)), np.zeros(0, np.int8)
     if len(mem):
         real = mem >= 0
         mi = np.where(real, mem, 0)
@@ -374,19 +374,10 @@ def compile_placements(pos, size, mass, params: Params = Params()) -> SoftProble
         bp = np.concatenate([pos[mem[sl, mslot], :2] - blo[sl] + origin[sl], zsl[sl, mslot][:, None]], 1)
         gidx = mem[sl, mslot]
         big = make_layout([str(i) for i in range(len(gidx))], bp, size[gidx], mass[gidx])
-        bm = compile_layout(big, params)
-        cb, coef, kind = _columns(bm)
-        nb = big.n
+        cb, coef, kind = _columns(compile_layout(big, params))
         gmap = np.concatenate([gidx, [k]])
-        cols_b.append(gmap[np.minimum(cb, nb)])
-        cols_c.append(coef)
-        cols_k.append(kind)
-    if cols_b:
-        col_brick = np.concatenate(cols_b).astype(np.int32)
-        col_coef = np.concatenate(cols_c).astype(np.float64)
-        col_kind = np.concatenate(cols_k).astype(np.int8)
-    else:
-        col_brick, col_coef, col_kind = np.zeros((0, 2), np.int32), np.zeros((0, 2, 6)), np.zeros(0, np.int8)
+        col_brick = gmap[np.minimum(cb, big.n)].astype(np.int32)
+        col_coef, col_kind = coef.astype(np.float64), kind.astype(np.int8)
     return SoftProblem(
         col_brick=col_brick, col_coef=col_coef, col_kind=col_kind,
         col_mask=np.ones(len(col_kind), bool), group=normal_groups(col_brick, col_kind, k),
