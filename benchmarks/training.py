@@ -93,6 +93,8 @@ def main(argv=None) -> int:
         res = os.path.join(d, "heldout.jsonl")
         if not os.path.exists(res):
             argv_ = [py, "-m", "training.evaluate", "--checkpoint", os.path.join(d, "checkpoint.npz"), "--out", res]
+            if lam == lams[0]:
+                argv_.append("--untrained")  # the network at initialisation, once per seed
             if (lam, s) == (lams[0], seeds[0]):
                 argv_.append("--heuristic")
             cmds.append((f"evaluate lam={lam:g} seed={s}", argv_, os.path.join(d, "evaluate.log")))
@@ -100,7 +102,7 @@ def main(argv=None) -> int:
         if rc != 0:
             print(f"error: {name} failed", file=sys.stderr)
             return 1
-    per_run, curves = [], {}
+    per_run, curves, untrained = [], {}, []
     heur = None
 
     def stats(rs):
@@ -113,6 +115,9 @@ def main(argv=None) -> int:
         h = [r for r in rows if r["method"] == "heuristic"]
         if h:
             heur = stats(h)
+        if any(r["method"] == "untrained" for r in rows):
+            untrained.append({"seed": s, **{dec: stats([r for r in rows if r["method"] == "untrained" + m[9:]])
+                                            for dec, m in DECODINGS.items()}})
         with open(os.path.join(d, "history.json")) as fh:
             hj = json.load(fh)
         rec = {"lam": lam, "seed": s, "train_wall_s": round(hj["wall_s"], 1), "steps": hj["config"]["steps"]}
@@ -140,7 +145,11 @@ def main(argv=None) -> int:
             vs_heur[dec] = {"stable_gain_pp": round(100 * (best[dec]["stable_fraction"] - heur["stable_fraction"]), 1),
                             "iou_cost": round(heur["mean_iou"] - best[dec]["mean_iou"], 4)}
     out = {"config": os.path.relpath(a.config, REPO), "lams": lams, "seeds": seeds, "decodings": DECODINGS,
-           "per_run": per_run, "by_lambda": by_lam, "heuristic": heur, "target": target, "vs_heuristic": vs_heur,
+           "per_run": per_run, "by_lambda": by_lam, "untrained": {
+               "per_seed": untrained, **({dec: {k: float(np.mean([u[dec][k] for u in untrained]))
+                                               for k in ("stable_fraction", "mean_iou", "mean_bricks")}
+                                         for dec in DECODINGS} if untrained else {})},
+           "heuristic": heur, "target": target, "vs_heuristic": vs_heur,
            "wall_s_training_this_invocation": round(train_wall, 1), "machine": "2-core x86_64 CPU, no GPU"}
     os.makedirs(a.results, exist_ok=True)
     atomic_write_text(os.path.join(a.results, "training.json"), json.dumps(out, indent=1))
@@ -156,6 +165,9 @@ def main(argv=None) -> int:
         print(f"| **lambda={lam:g}, mean** | {len(seeds)} seeds | **{b['strict']['stable_fraction']:.3f}** | "
               f"**{b['strict']['mean_iou']:.4f}** | **{b['filled']['stable_fraction']:.3f}** | "
               f"**{b['filled']['mean_iou']:.4f}** | {b['filled']['mean_bricks']:.1f} | {b['train_wall_s']:.0f} |")
+    for u in untrained:
+        print(f"| untrained network | {u['seed']} | {u['strict']['stable_fraction']:.3f} | {u['strict']['mean_iou']:.4f} | "
+              f"{u['filled']['stable_fraction']:.3f} | {u['filled']['mean_iou']:.4f} | {u['filled']['mean_bricks']:.1f} | 0 |")
     if heur:
         print(f"| merge heuristic | - | - | - | {heur['stable_fraction']:.3f} | {heur['mean_iou']:.4f} | "
               f"{heur['mean_bricks']:.1f} | - |")
@@ -178,8 +190,9 @@ def _plot(curves, lams, seeds, path):
 
     keys = [("fidelity", "fidelity (sum of (coverage-1)^2)"), ("stability", "stability loss (mean per shape)"),
             ("heldout_stable", "held-out stable fraction, strict (exact)"), ("heldout_iou", "held-out IoU, strict"),
-            ("heldout_stable_filled", "held-out stable fraction, filled (exact)")]
-    fig, axes = plt.subplots(1, 5, figsize=(22, 4))
+            ("heldout_stable_filled", "held-out stable fraction, filled (exact)"),
+            ("val_stable_filled", "validation stable fraction, filled (exact)")]
+    fig, axes = plt.subplots(1, 6, figsize=(26, 4))
     colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
     for i, lam in enumerate(lams):
         for j, s in enumerate(seeds):

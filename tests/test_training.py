@@ -8,7 +8,6 @@ import numpy as np
 import pytest
 
 from stablelego_jax.repair import one_blas_thread
-from stablelego_jax.soft import stack_soft
 from training import net
 from training import train as T
 from training.shapes import procedural_shape
@@ -37,10 +36,8 @@ def test_loss_decreases_and_stability_gradient_reaches_params(tmp_path):
     rng = np.random.default_rng(0)
     with one_blas_thread():
         p = np.asarray(probs_fn(params, arr.x, arr.valid))
-        sub = [T.select_subset(p[j], arr.valid[j], cfg, rng) for j in range(2)]
-        fi, mask = np.stack([s[0] for s in sub]), np.stack([s[1] for s in sub])
-        prob = stack_soft([s[2] for s in sub])
-        args = (arr.x, arr.valid, arr.target, fi, mask, prob)
+        sub = T.batch_subsets(p, arr.valid, cfg, rng)
+        args = (arr.x, arr.valid, arr.target, *sub)
         # the stability term's gradient reaches every layer of the generator:
         # grad(total at lam) - grad(total at lam = 0) = grad(lam * stability)
         lam, bw = np.float64(cfg["lam"]), np.float64(0.1)
@@ -55,7 +52,7 @@ def test_loss_decreases_and_stability_gradient_reaches_params(tmp_path):
         opt_state = opt.init(params)
         losses = []
         for _ in range(10):
-            params, opt_state, loss, _ = step_fn(params, opt_state, lam, bw, *args)
+            params, opt_state, loss, _ = step_fn(params, opt_state, lam, bw, *args[:3], sub)
             losses.append(float(loss))
     assert np.isfinite(losses).all()
     assert losses[-1] < 0.8 * losses[0]
@@ -87,6 +84,11 @@ def test_decoding_never_overlaps_and_stays_inside():
             assert (p[tuple(idx.T)] >= thr).all()
             iou = net.decoded_iou(c, pos, size)
             assert np.isclose(iou, count.sum() / c.sum())
+        # filling with the valid placements covers the shape exactly even when
+        # (as for a saturated network) most probabilities underflow to 0
+        q = np.where(rng.random(valid.shape) < 0.02, p, 0.0)
+        _, pos, size = net.decode(q, 0.5, fill=True, valid=valid)
+        assert net.decoded_iou(c, pos, size) == 1.0
         # the soft coverage of a 0/1 decoding is its cell count
         q = np.zeros_like(p)
         q[tuple(idx.T)] = 1.0
@@ -121,3 +123,50 @@ def test_bad_config_names_the_file(tmp_path, capsys):
     assert T.main(["--config", str(bad)]) == 2
     assert "bad.json" in capsys.readouterr().err
     assert not (tmp_path / "o").exists()
+
+
+def test_subset_shares_keep_every_cell_whole():
+    # placements 0: 1x1 on cell a; 1: 1x2 on cells a, b; 2: 1x1 on cell b; 3: 1x1 alone on cell c; 4: padding
+    inc = np.zeros((1, 4, 5))
+    inc[0, 0, [0, 1]] = 1  # cell a
+    inc[0, 1, [1, 2]] = 1  # cell b
+    inc[0, 2, 3] = 1  # cell c
+    ps = jnp.asarray([[0.6, 0.2, 0.9, 0.01, 0.0]])
+    w = np.asarray(net.subset_shares(ps, jnp.asarray(inc)))[0]
+    # a lone placement exists fully whatever its probability; padding not at all
+    assert np.isclose(w[3], 1.0) and w[4] == 0.0
+    # overlapping alternatives split their cells in the ratio of their probabilities
+    np.testing.assert_allclose(w[:3], [0.6 / 0.8, 0.2 / 1.1, 0.9 / 1.1])
+    # so no cell of the subset ends up with less than its most contested share
+    cell_mass = inc[0] @ w
+    assert (cell_mass[:3] >= 0.9).all()
+    # lowering a lone placement's probability does not lower its weight
+    g = jax.grad(lambda q: net.subset_shares(q, jnp.asarray(inc))[0, 3])(ps)
+    assert float(g[0, 3]) == 0.0
+
+
+def test_grad_floor_moves_saturated_placements(tmp_path):
+    # with the network's output bias far negative every probability is ~0, so
+    # d p / d logit ~ 0: without the floor the stability term cannot move anything
+    arr = _batch(_cfg(tmp_path))
+    out = {}
+    for floor in (0.0, 0.1):
+        cfg = _cfg(tmp_path, grad_floor=floor, out_bias=-40.0)
+        probs_fn, _, _, _, grad_fn = T.make_fns(cfg)
+        params = net.init_params(jax.random.PRNGKey(0), cfg["width"], tuple(cfg["dilations"]), cfg["out_bias"])
+        with one_blas_thread():
+            p = np.asarray(probs_fn(params, arr.x, arr.valid))
+            sub = T.batch_subsets(p, arr.valid, cfg, np.random.default_rng(0), arr.span)
+            _, aux, g1 = grad_fn(params, np.float64(100.0), np.float64(0.0), arr.x, arr.valid, arr.target, *sub)
+            _, _, g0 = grad_fn(params, np.float64(0.0), np.float64(0.0), arr.x, arr.valid, arr.target, *sub)
+        assert float(aux[2]) > 0.0  # the filled subset puts every cell in the problem
+        out[floor] = float(jnp.abs(g1[-1][1] - g0[-1][1]).sum())  # stability gradient on the output bias
+    assert out[0.0] < 1e-9 < out[0.1]
+
+
+def test_config_rejects_unknown_choices(tmp_path):
+    for key, val in (("subset_base", "partial"), ("share_scope", "cells"), ("lr_schedule", "linear")):
+        bad = tmp_path / "bad.json"
+        bad.write_text(json.dumps({key: val}))
+        with pytest.raises(T.ConfigError, match=f"bad.json.*'{key}' must be one of"):
+            T.load_config(str(bad))

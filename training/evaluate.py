@@ -1,7 +1,7 @@
 """Score a trained generator on the held-out shapes with the exact solver.
 
     python -m training.evaluate --checkpoint OUT/checkpoint.npz --out RESULTS.jsonl
-        [--heuristic] [--split heldout|train]
+        [--heuristic] [--untrained] [--split heldout|val|train]
 
 Decodes two layouts per shape: "generator" (greedy, probabilities >= the
 config's ``threshold``, no overlaps, nothing forced in: cells can stay
@@ -12,7 +12,10 @@ IoU 1 by construction), scores it with HiGHS
 writes one JSON line per shape: name, kind, method, stable, iou, n_bricks,
 n_cells. ``--heuristic`` adds the StableLego merge rule
 (:func:`generators.voxels.merge_voxels`, exact cover: IoU 1) on the same
-shapes. The summary (stable fraction, mean IoU per method) goes to stdout;
+shapes; ``--untrained`` adds the same two decodings of the checkpoint's
+network at initialisation ("untrained", "untrained_filled": same config
+and seed, no training step), the reference that shows what training
+added. The summary (stable fraction, mean IoU per method) goes to stdout;
 the file is written atomically.
 """
 from __future__ import annotations
@@ -28,25 +31,33 @@ import numpy as np
 from stablelego_jax.io import atomic_write_text
 
 
-def evaluate(ckpt: str, split: str = "heldout", heuristic: bool = False) -> list[dict]:
+def evaluate(ckpt: str, split: str = "heldout", heuristic: bool = False, untrained: bool = False) -> list[dict]:
     """Rows (one per shape and method) for the checkpoint ``ckpt``."""
+    import jax
+
+    from . import net
     from .train import Arrays, dataset, decode_and_score, load_checkpoint, make_fns, score_layout
 
     params, _, step, _, cfg, _ = load_checkpoint(ckpt)
-    train_shapes, held = dataset(cfg)
-    shapes = held if split == "heldout" else train_shapes
+    train_shapes, val, held = dataset(cfg, validation=True)
+    shapes = {"heldout": held, "val": val, "train": train_shapes}[split]
     arr = Arrays(shapes, cfg["crop"], cfg["grid"])
     probs_fn = make_fns(cfg)[0]
     from stablelego_jax.blas import one_blas_thread
 
+    nets = [("generator", params, step)]
+    if untrained:
+        nets.append(("untrained", net.init_params(jax.random.PRNGKey(cfg["seed"]), cfg["width"],
+                                                  tuple(cfg["dilations"]), cfg["out_bias"]), 0))
     rows = []
-    for method, fill in (("generator", False), ("generator_filled", True)):
-        with one_blas_thread():
-            res = decode_and_score(params, arr, cfg, probs_fn, fill=fill)
-        for s, (stable, iou, nb) in zip(shapes, res):
-            rows.append({"shape": s.name, "kind": s.kind, "method": method, "lam": cfg["lam"], "seed": cfg["seed"],
-                         "step": step, "stable": stable, "iou": round(iou, 6), "n_bricks": nb,
-                         "n_cells": int(s.vox.sum())})
+    for name, prm, st in nets:
+        for method, fill in ((name, False), (name + "_filled", True)):
+            with one_blas_thread():
+                res = decode_and_score(prm, arr, cfg, probs_fn, fill=fill)
+            for s, (stable, iou, nb) in zip(shapes, res):
+                rows.append({"shape": s.name, "kind": s.kind, "method": method, "lam": cfg["lam"],
+                             "seed": cfg["seed"], "step": st, "stable": stable, "iou": round(iou, 6),
+                             "n_bricks": nb, "n_cells": int(s.vox.sum())})
     if heuristic:
         from generators.voxels import merge_voxels
 
@@ -72,14 +83,16 @@ def main(argv=None) -> int:
     ap.add_argument("--checkpoint", required=True)
     ap.add_argument("--out", required=True, help="results, one JSON object per line")
     ap.add_argument("--heuristic", action="store_true", help="also score the merge heuristic on the same shapes")
-    ap.add_argument("--split", choices=("heldout", "train"), default="heldout")
+    ap.add_argument("--untrained", action="store_true",
+                    help="also score the same network at initialisation (same config and seed)")
+    ap.add_argument("--split", choices=("heldout", "val", "train"), default="heldout")
     a = ap.parse_args(argv)
     if not os.path.isfile(a.checkpoint):
         print(f"error: {a.checkpoint}: checkpoint not found", file=sys.stderr)
         return 2
     t0 = time.perf_counter()
     try:
-        rows = evaluate(a.checkpoint, a.split, a.heuristic)
+        rows = evaluate(a.checkpoint, a.split, a.heuristic, a.untrained)
     except (OSError, ValueError, KeyError) as exc:
         print(f"error: {a.checkpoint}: cannot evaluate: {exc}", file=sys.stderr)
         return 2

@@ -17,8 +17,8 @@ import numpy as np
 
 from stablelego_jax.layout import TABLE_I_MASS_KG, cells_of
 
-__all__ = ["TYPES", "MASS", "features", "crop", "valid_placements", "init_params", "apply", "probabilities",
-           "coverage", "window_max", "existence_weights", "spanning_placements", "decode", "decoded_iou"]
+__all__ = ["TYPES", "MASS", "features", "crop", "valid_placements", "init_params", "apply", "bound_logits", "probabilities",
+           "coverage", "window_max", "existence_weights", "subset_shares", "spanning_placements", "decode", "decoded_iou"]
 
 #: oriented brick types (sx studs along x, sy along y): Table I in both orientations.
 TYPES = ((1, 1), (1, 2), (2, 1), (1, 4), (4, 1), (1, 6), (6, 1), (1, 8), (8, 1),
@@ -124,9 +124,19 @@ def apply(params, x, dilations=(1, 2, 4, 1)):
     return h @ w.reshape(w.shape[-2], w.shape[-1]) + b
 
 
-def probabilities(params, x, valid, dilations=(1, 2, 4, 1)):
-    """(B, X, Y, Z, K) float64 placement probabilities (0 where not valid)."""
-    return jnp.where(valid, jax.nn.sigmoid(apply(params, x, dilations).astype(jnp.float64)), 0.0)
+def bound_logits(logits, bound: float):
+    """``bound * tanh(logits / bound)``: logits kept inside (-bound, bound)
+    (probabilities inside (sigmoid(-bound), sigmoid(bound)))."""
+    return bound * jnp.tanh(logits / bound)
+
+
+def probabilities(params, x, valid, dilations=(1, 2, 4, 1), logit_bound: float = 0.0):
+    """(B, X, Y, Z, K) float64 placement probabilities (0 where not valid);
+    ``logit_bound`` > 0: logits through :func:`bound_logits` first."""
+    logits = apply(params, x, dilations).astype(jnp.float64)
+    if logit_bound > 0:
+        logits = bound_logits(logits, logit_bound)
+    return jnp.where(valid, jax.nn.sigmoid(logits), 0.0)
 
 
 def coverage(p):
@@ -173,6 +183,24 @@ def existence_weights(p, cov, floor: float = 1e-3):
     return p / jnp.maximum(M, floor)
 
 
+def subset_shares(ps, inc, floor: float = 1e-3):
+    """(B, n) existence weights of a subset of placements: each one's share
+    of its most contested cell *within the subset*, ``p / max(M, floor)``
+    with M the largest over its cells of the summed probability of the
+    subset's placements covering the cell.
+
+    ps: (B, n) probabilities of the subset's placements (0 for padding);
+    inc: (B, c, n) 0/1, placement j covers the subset's cell i. Where one
+    placement alone holds its cells the weight is 1 whatever its
+    probability; where alternatives overlap they split the cell in the
+    ratio of their probabilities, so every cell of the subset keeps (about)
+    its full mass and the stability term can lower its loss only by moving
+    probability from one brick to another, never by leaving a cell empty."""
+    cov = jnp.einsum("bcn,bn->bc", inc, ps)
+    M = jnp.max(inc * cov[:, :, None], axis=1)
+    return ps / jnp.maximum(M, floor)
+
+
 def spanning_placements(vox: np.ndarray) -> np.ndarray:
     """(X, Y, Z, K) bool: valid placements whose window holds both a cell
     with support below (or on layer 0) and a cell without (bricks that can
@@ -184,21 +212,23 @@ def spanning_placements(vox: np.ndarray) -> np.ndarray:
     return valid_placements(vox) & (s > 0) & (s < _area())
 
 
-def decode(prob: np.ndarray, threshold: float = 0.5, fill: bool = False):
+def decode(prob: np.ndarray, threshold: float = 0.5, fill: bool = False, valid: np.ndarray | None = None):
     """Greedy non-overlapping layout from one shape's (X, Y, Z, K) probabilities.
 
     Placements with probability >= ``threshold`` are taken highest first,
     each unless it overlaps one already taken; nothing is forced in, so
     cells no such placement covers stay empty (IoU < 1). ``fill``: then go
-    on down the list through every valid placement (probability > 0), so
-    the layout covers the shape exactly (IoU 1 by construction; the
-    probabilities still choose the bricks). Returns (idx (n, 4) int
-    [x, y, z, type], pos (n, 3), size (n, 2)).
+    on down the list through every valid placement (``valid`` (X, Y, Z, K)
+    bool; when None, those of probability > 0), so the layout covers the
+    shape exactly (IoU 1 by construction; the probabilities still choose
+    the bricks). Pass ``valid``: a saturated network's probabilities
+    underflow to exactly 0 and would leave cells empty. Returns (idx (n, 4)
+    int [x, y, z, type], pos (n, 3), size (n, 2)).
     """
     prob = np.asarray(prob)
     cand = np.argwhere(prob >= threshold)
     if fill:
-        cand = np.argwhere(prob > 0)
+        cand = np.argwhere(prob > 0 if valid is None else np.asarray(valid, bool))
     order = np.argsort(-prob[tuple(cand.T)], kind="stable")
     cand = cand[order]
     occ = np.zeros(prob.shape[:3], bool)

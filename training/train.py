@@ -32,6 +32,7 @@ import json
 import os
 import sys
 import time
+from typing import NamedTuple
 
 import numpy as np
 
@@ -65,6 +66,14 @@ DEFAULTS = {
     "n_pad": 48,
     "m_pad": 2048,
     "p_pad": 64,
+    "c_pad": 96,
+    "subset_base": "strict",
+    "share_scope": "all",
+    "val_count": 0,
+    "grad_floor": 0.0,
+    "logit_bound": 0.0,
+    "lr_schedule": "constant",
+    "lr_final_frac": 0.05,
     "competitors": 12,
     "random_competitors": 4,
     "temperature": 0.02,
@@ -106,12 +115,16 @@ def load_config(path: str, **overrides) -> dict:
         if not ok:
             raise ConfigError(f"{path}: config key {k!r} must be {type(d).__name__}, got {v!r}")
         cfg[k] = float(v) if isinstance(d, float) else v
-    for k in ("steps", "batch", "n_pad", "m_pad", "p_pad", "checkpoint_every", "eval_every", "log_every"):
+    for k in ("steps", "batch", "n_pad", "m_pad", "p_pad", "c_pad", "checkpoint_every", "eval_every", "log_every"):
         if cfg[k] < 1:
             raise ConfigError(f"{path}: config key {k!r} must be >= 1, got {cfg[k]}")
     if not (isinstance(cfg["crop"], list) and len(cfg["crop"]) == 3 and all(
             isinstance(c, int) and 8 <= c <= cfg["grid"] for c in cfg["crop"][:2]) and 1 <= cfg["crop"][2] <= cfg["grid"]):
         raise ConfigError(f"{path}: crop must be [cx, cy, cz] with 8 <= cx, cy <= grid and 1 <= cz <= grid")
+    for k, allowed in (("subset_base", ("strict", "filled")), ("share_scope", ("all", "subset")),
+                        ("lr_schedule", ("constant", "cosine"))):
+        if cfg[k] not in allowed:
+            raise ConfigError(f"{path}: config key {k!r} must be one of {', '.join(allowed)}, got {cfg[k]!r}")
     if cfg["lam"] < 0 or not 0 < cfg["threshold"] <= 1:
         raise ConfigError(f"{path}: need lam >= 0 and 0 < threshold <= 1")
     if cfg["mesh_dir"] is not None and not os.path.isabs(cfg["mesh_dir"]):
@@ -132,11 +145,19 @@ def _dataset(n_procedural, mesh_dir, seed, heldout_frac, grid, mesh_extent, mesh
     return build_dataset(n_procedural, mesh_dir, seed, heldout_frac, grid, mesh_extent, mesh_max_cells)
 
 
-def dataset(cfg: dict):
-    """(train, heldout) shapes of a config (deterministic in its data keys)."""
+def dataset(cfg: dict, validation: bool = False):
+    """(train, heldout) shapes of a config (deterministic in its data keys).
+
+    ``validation``: (train, validation, heldout) instead, with ``val_count``
+    training objects (chosen by ``data_seed``) moved out of the training
+    shapes into a validation set for tuning; training always runs on the
+    train part of this three-way split."""
     tr, he, _ = _dataset(cfg["n_procedural"], cfg["mesh_dir"], cfg["data_seed"], cfg["heldout_frac"],
                          cfg["grid"], cfg["mesh_extent"], cfg["mesh_max_cells"])
-    return tr, he
+    val_idx = set(np.random.default_rng(cfg["data_seed"] + 2).permutation(len(tr))[: cfg["val_count"]].tolist())
+    train = [s for i, s in enumerate(tr) if i not in val_idx]
+    val = [s for i, s in enumerate(tr) if i in val_idx]
+    return (train, val, he) if validation else (train, he)
 
 
 class Arrays:
@@ -166,21 +187,35 @@ class Arrays:
 # the stability subset (host side)
 
 
-def select_subset(p: np.ndarray, valid: np.ndarray, cfg: dict, rng: np.random.Generator, span=None):
+class Subset(NamedTuple):
+    """One shape's stability subset (or a batch of them, stacked):
+    fi (n_pad,) flat placement indices into (X, Y, Z, K), mask (n_pad,) real
+    slots, inc (c_pad, n_pad) float 0/1 cell incidence (which of the
+    subset's cells each placement covers), prob the padded SoftProblem."""
+
+    fi: np.ndarray
+    mask: np.ndarray
+    inc: np.ndarray
+    prob: object
+
+
+def select_subset(p: np.ndarray, valid: np.ndarray, cfg: dict, rng: np.random.Generator, span=None) -> Subset:
     """Placements of one shape for the stability term and their padded problem.
 
     p, valid, span: (X, Y, Z, K). Takes the decoded placements (lowest
-    layers first), then the ``competitors`` most probable others, then
+    layers first; the strict decoding, or the filled one when
+    ``subset_base`` is "filled", so every cell of the shape is in the
+    problem), then the ``competitors`` most probable others, then
     ``random_competitors`` random ones among the ``span`` placements (those
     that reach from a supported cell into an overhang; all valid ones when
     None), and drops from the end until the compiled problem fits
-    (n_pad, m_pad, p_pad), keeping at least the competitors' share free.
-    Returns (flat indices (n_pad,), mask (n_pad,), padded SoftProblem).
+    (n_pad, m_pad, p_pad, c_pad), keeping at least the competitors' share free.
     """
+    from stablelego_jax.layout import cells_of
     from stablelego_jax.soft import compile_placements, pad_soft
     from .net import MASS, TYPES, decode
 
-    idx, _, _ = decode(p, cfg["threshold"])
+    idx, _, _ = decode(p, cfg["threshold"], cfg["subset_base"] == "filled", valid)
     idx = idx[np.argsort(idx[:, 2], kind="stable")]
     dec = np.ravel_multi_index(tuple(idx.T), p.shape) if len(idx) else np.zeros(0, np.int64)
     n_comp = cfg["competitors"] + cfg["random_competitors"]
@@ -196,17 +231,32 @@ def select_subset(p: np.ndarray, valid: np.ndarray, cfg: dict, rng: np.random.Ge
     while True:
         x, y, z, k = np.unravel_index(chosen, p.shape)
         size = np.asarray(TYPES, np.int64)[k]
-        prob = compile_placements(np.stack([x, y, z], 1), size, MASS[k])
-        if prob.col_kind.shape[0] <= cfg["m_pad"] and prob.group.shape[1] <= cfg["p_pad"]:
+        pos = np.stack([x, y, z], 1)
+        cells, owner = cells_of(pos, size)
+        ucells, cell_id = np.unique(cells, axis=0, return_inverse=True)
+        prob = compile_placements(pos, size, MASS[k])
+        if (prob.col_kind.shape[0] <= cfg["m_pad"] and prob.group.shape[1] <= cfg["p_pad"]
+                and len(ucells) <= cfg["c_pad"]):
             break
         chosen = chosen[: max(len(chosen) - 4, 1)]
     n = len(chosen)
-    pad = pad_soft(prob, cfg["n_pad"], cfg["m_pad"], cfg["p_pad"])
     fi = np.zeros(cfg["n_pad"], np.int64)
     fi[:n] = chosen
     mask = np.zeros(cfg["n_pad"], bool)
     mask[:n] = True
-    return fi, mask, pad
+    inc = np.zeros((cfg["c_pad"], cfg["n_pad"]))
+    inc[np.ravel(cell_id), owner] = 1.0
+    return Subset(fi, mask, inc, pad_soft(prob, cfg["n_pad"], cfg["m_pad"], cfg["p_pad"]))
+
+
+def batch_subsets(p: np.ndarray, valid: np.ndarray, cfg: dict, rng: np.random.Generator, span=None) -> Subset:
+    """:func:`select_subset` of each shape of a batch (p, valid, span:
+    (B, X, Y, Z, K)), stacked into one Subset of (B, ...) arrays."""
+    from stablelego_jax.soft import stack_soft
+
+    sub = [select_subset(p[j], valid[j], cfg, rng, None if span is None else span[j]) for j in range(len(p))]
+    return Subset(*(np.stack([getattr(s, f) for s in sub]) for f in ("fi", "mask", "inc")),
+                  stack_soft([s.prob for s in sub]))
 
 
 # --------------------------------------------------------------------------
@@ -241,21 +291,36 @@ def _make_fns(key: str):
 
     dil = tuple(cfg["dilations"])
     opts = LossOptions(temperature=cfg["temperature"])
-    opt = optax.chain(optax.clip_by_global_norm(cfg["clip"]), optax.adam(cfg["lr"]))
+    lr = cfg["lr"] if cfg["lr_schedule"] == "constant" else optax.cosine_decay_schedule(
+        cfg["lr"], max(cfg["steps"], 1), alpha=cfg["lr_final_frac"])
+    opt = optax.chain(optax.clip_by_global_norm(cfg["clip"]), optax.adam(lr))
 
     @jax.jit
     def probs_fn(params, x, valid):
-        return net.probabilities(params, x, valid, dil)
+        return net.probabilities(params, x, valid, dil, cfg["logit_bound"])
 
-    def terms(params, x, valid, target, fi, mask, prob):
-        p = net.probabilities(params, x, valid, dil)
+    def terms(params, x, valid, target, fi, mask, inc, prob):
+        logits = net.apply(params, x, dil).astype(jnp.float64)
+        if cfg["logit_bound"] > 0:  # as net.probabilities
+            logits = net.bound_logits(logits, cfg["logit_bound"])
+        p = jnp.where(valid, jax.nn.sigmoid(logits), 0.0)
+        if cfg["grad_floor"] > 0:
+            # the same values, with d p / d logit = p (1 - p) + grad_floor in the
+            # fidelity and stability terms: a saturated placement can still be moved
+            p_g = p + cfg["grad_floor"] * jnp.where(valid, logits - jax.lax.stop_gradient(logits), 0.0)
+        else:
+            p_g = p
         B = p.shape[0]
-        cov = net.coverage(p)
+        cov = net.coverage(p_g)
         err = jnp.where(cov < 1.0, cfg["under_weight"], 1.0) * (cov - 1.0) ** 2
         fid = jnp.where(target, err, 0.0).reshape(B, -1).sum(1).mean()
         binar = (p * (1.0 - p)).reshape(B, -1).sum(1).mean()
-        wts = net.existence_weights(p, cov, cfg["share_floor"])
-        w = jnp.take_along_axis(wts.reshape(B, -1), fi, axis=1) * mask
+        if cfg["share_scope"] == "subset":
+            ps = jnp.take_along_axis(p_g.reshape(B, -1), fi, axis=1) * mask
+            w = net.subset_shares(ps, inc, cfg["share_floor"])
+        else:
+            wts = net.existence_weights(p_g, cov, cfg["share_floor"])
+            w = jnp.take_along_axis(wts.reshape(B, -1), fi, axis=1) * mask
         rep = jax.vmap(lambda wi, pi: soft_report(wi, None, pi, opts=opts))(w, prob)
         # a problem whose interior-point solve did not converge contributes nothing
         stab = jnp.where(rep.converged, rep.brick_loss.sum(1), 0.0).mean()
@@ -275,8 +340,8 @@ def _make_fns(key: str):
         upd, opt_state = opt.update(g, opt_state, params)
         return optax.apply_updates(params, upd), opt_state
 
-    def step_fn(params, opt_state, lam, bw, x, valid, target, fi, mask, prob):
-        loss, aux, g = grad_fn(params, lam, bw, x, valid, target, fi, mask, prob)
+    def step_fn(params, opt_state, lam, bw, x, valid, target, sub: Subset):
+        loss, aux, g = grad_fn(params, lam, bw, x, valid, target, *sub)
         params, opt_state = update_fn(params, opt_state, g)
         return params, opt_state, loss, aux
 
@@ -363,7 +428,7 @@ def decode_and_score(params, arrays: Arrays, cfg: dict, probs_fn, chunk: int = 8
     for s in range(0, len(arrays.x), chunk):
         p = np.asarray(probs_fn(params, arrays.x[s:s + chunk], arrays.valid[s:s + chunk]))
         for j in range(len(p)):
-            _, pos, size = decode(p[j], cfg["threshold"], fill)
+            _, pos, size = decode(p[j], cfg["threshold"], fill, arrays.valid[s + j])
             iou = decoded_iou(arrays.target[s + j], pos, size)
             pos = pos + arrays.offset[s + j]  # back into the (G, G, G) grid
             out.append((score_layout(layout_of(pos, size)), iou, len(pos)))
@@ -403,8 +468,9 @@ def train(cfg: dict, out: str, resume: bool = False, log=sys.stderr, max_steps: 
                                  cfg["out_bias"])
         opt_state = opt.init(params)
         step, rng, history = 0, np.random.default_rng(cfg["seed"]), []
-    train_shapes, held = dataset(cfg)
+    train_shapes, val, held = dataset(cfg, validation=True)
     tr = Arrays(train_shapes, cfg["crop"], cfg["grid"])
+    ev_val = Arrays(val, cfg["crop"], cfg["grid"])
     ev_idx = np.random.default_rng(cfg["data_seed"] + 1).permutation(len(train_shapes))[: cfg["eval_train"]]
     ev_tr = Arrays([train_shapes[i] for i in sorted(ev_idx)], cfg["crop"], cfg["grid"])
     ev_he = Arrays(held, cfg["crop"], cfg["grid"]) if cfg["eval_heldout"] else None
@@ -416,14 +482,9 @@ def train(cfg: dict, out: str, resume: bool = False, log=sys.stderr, max_steps: 
             b = rng.choice(len(train_shapes), size=cfg["batch"], replace=False)
             x, valid, target = tr.x[b], tr.valid[b], tr.target[b]
             p = np.asarray(probs_fn(params, x, valid))
-            sub = [select_subset(p[j], valid[j], cfg, rng, tr.span[b[j]]) for j in range(len(b))]
-            fi = np.stack([s[0] for s in sub])
-            mask = np.stack([s[1] for s in sub])
-            from stablelego_jax.soft import stack_soft
-
-            prob = stack_soft([s[2] for s in sub])
+            sub = batch_subsets(p, valid, cfg, rng, tr.span[b])
             bw = np.float64(bin_weight(cfg, step))
-            params, opt_state, loss, aux = step_fn(params, opt_state, lam, bw, x, valid, target, fi, mask, prob)
+            params, opt_state, loss, aux = step_fn(params, opt_state, lam, bw, x, valid, target, sub)
             step += 1
             done += 1
             aux = [float(a) for a in aux]
@@ -436,8 +497,8 @@ def train(cfg: dict, out: str, resume: bool = False, log=sys.stderr, max_steps: 
                       flush=True)
             if step % cfg["eval_every"] == 0 or step == cfg["steps"]:
                 rec = {"step": step, "eval": True}
-                for name, arr in (("train", ev_tr), ("heldout", ev_he)):
-                    if arr is None or len(arr.x) == 0:
+                for name, arr in (("train", ev_tr), ("val", ev_val), ("heldout", ev_he)):
+                    if arr is None or not arr.names:
                         continue
                     r = decode_and_score(params, arr, cfg, probs_fn)
                     rec[f"{name}_stable"] = float(np.mean([a[0] for a in r]))
