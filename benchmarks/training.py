@@ -116,7 +116,7 @@ def main(argv=None) -> int:
         if h:
             heur = stats(h)
         if any(r["method"] == "untrained" for r in rows):
-            untrained.append({"seed": s, **{dec: stats([r for r in rows if r["method"] == "untrained" + m[9:]])
+            untrained.append({"seed": s, **{dec: stats([r for r in rows if r["method"] == m.replace("generator", "untrained")])
                                             for dec, m in DECODINGS.items()}})
         with open(os.path.join(d, "history.json")) as fh:
             hj = json.load(fh)

@@ -32,7 +32,7 @@ def test_loss_decreases_and_stability_gradient_reaches_params(tmp_path):
     cfg = _cfg(tmp_path)
     probs_fn, step_fn, opt, terms, grad_fn = T.make_fns(cfg)
     arr = _batch(cfg)
-    params = net.init_params(jax.random.PRNGKey(0), cfg["width"], tuple(cfg["dilations"]), cfg["out_bias"])
+    params = T.initial_params(cfg, 0)
     rng = np.random.default_rng(0)
     with one_blas_thread():
         p = np.asarray(probs_fn(params, arr.x, arr.valid))
@@ -153,7 +153,7 @@ def test_grad_floor_moves_saturated_placements(tmp_path):
     for floor in (0.0, 0.1):
         cfg = _cfg(tmp_path, grad_floor=floor, out_bias=-40.0)
         probs_fn, _, _, _, grad_fn = T.make_fns(cfg)
-        params = net.init_params(jax.random.PRNGKey(0), cfg["width"], tuple(cfg["dilations"]), cfg["out_bias"])
+        params = T.initial_params(cfg, 0)
         with one_blas_thread():
             p = np.asarray(probs_fn(params, arr.x, arr.valid))
             sub = T.batch_subsets(p, arr.valid, cfg, np.random.default_rng(0), arr.span)

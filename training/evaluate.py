@@ -33,10 +33,7 @@ from stablelego_jax.io import atomic_write_text
 
 def evaluate(ckpt: str, split: str = "heldout", heuristic: bool = False, untrained: bool = False) -> list[dict]:
     """Rows (one per shape and method) for the checkpoint ``ckpt``."""
-    import jax
-
-    from . import net
-    from .train import Arrays, dataset, decode_and_score, load_checkpoint, make_fns, score_layout
+    from .train import Arrays, dataset, decode_and_score, initial_params, load_checkpoint, make_fns, score_layout
 
     params, _, step, _, cfg, _ = load_checkpoint(ckpt)
     train_shapes, val, held = dataset(cfg, validation=True)
@@ -47,8 +44,7 @@ def evaluate(ckpt: str, split: str = "heldout", heuristic: bool = False, untrain
 
     nets = [("generator", params, step)]
     if untrained:
-        nets.append(("untrained", net.init_params(jax.random.PRNGKey(cfg["seed"]), cfg["width"],
-                                                  tuple(cfg["dilations"]), cfg["out_bias"]), 0))
+        nets.append(("untrained", initial_params(cfg), 0))
     rows = []
     for name, prm, st in nets:
         for method, fill in ((name, False), (name + "_filled", True)):

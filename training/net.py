@@ -17,7 +17,7 @@ import numpy as np
 
 from stablelego_jax.layout import TABLE_I_MASS_KG, cells_of
 
-__all__ = ["TYPES", "MASS", "features", "crop", "valid_placements", "init_params", "apply", "bound_logits", "probabilities",
+__all__ = ["TYPES", "MASS", "features", "crop", "valid_placements", "init_params", "apply", "bound_logits", "logits", "probabilities",
            "coverage", "window_max", "existence_weights", "subset_shares", "spanning_placements", "decode", "decoded_iou"]
 
 #: oriented brick types (sx studs along x, sy along y): Table I in both orientations.
@@ -130,13 +130,17 @@ def bound_logits(logits, bound: float):
     return bound * jnp.tanh(logits / bound)
 
 
+def logits(params, x, dilations=(1, 2, 4, 1), logit_bound: float = 0.0):
+    """(B, X, Y, Z, K) float64 logits of :func:`apply`; ``logit_bound`` > 0:
+    through :func:`bound_logits`."""
+    lg = apply(params, x, dilations).astype(jnp.float64)
+    return bound_logits(lg, logit_bound) if logit_bound > 0 else lg
+
+
 def probabilities(params, x, valid, dilations=(1, 2, 4, 1), logit_bound: float = 0.0):
-    """(B, X, Y, Z, K) float64 placement probabilities (0 where not valid);
-    ``logit_bound`` > 0: logits through :func:`bound_logits` first."""
-    logits = apply(params, x, dilations).astype(jnp.float64)
-    if logit_bound > 0:
-        logits = bound_logits(logits, logit_bound)
-    return jnp.where(valid, jax.nn.sigmoid(logits), 0.0)
+    """(B, X, Y, Z, K) float64 placement probabilities: the sigmoid of
+    :func:`logits`, 0 where not valid."""
+    return jnp.where(valid, jax.nn.sigmoid(logits(params, x, dilations, logit_bound)), 0.0)
 
 
 def coverage(p):

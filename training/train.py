@@ -300,10 +300,8 @@ def _make_fns(key: str):
         return net.probabilities(params, x, valid, dil, cfg["logit_bound"])
 
     def terms(params, x, valid, target, fi, mask, inc, prob):
-        logits = net.apply(params, x, dil).astype(jnp.float64)
-        if cfg["logit_bound"] > 0:  # as net.probabilities
-            logits = net.bound_logits(logits, cfg["logit_bound"])
-        p = jnp.where(valid, jax.nn.sigmoid(logits), 0.0)
+        logits = net.logits(params, x, dil, cfg["logit_bound"])
+        p = jnp.where(valid, jax.nn.sigmoid(logits), 0.0)  # = net.probabilities, sharing the logits
         if cfg["grad_floor"] > 0:
             # the same values, with d p / d logit = p (1 - p) + grad_floor in the
             # fidelity and stability terms: a saturated placement can still be moved
@@ -352,6 +350,17 @@ def _make_fns(key: str):
 # checkpoints
 
 
+def initial_params(cfg: dict, seed: int | None = None):
+    """The generator's parameters at initialisation for ``cfg`` (its
+    ``seed`` unless given)."""
+    import jax
+
+    from . import net
+
+    key = jax.random.PRNGKey(cfg["seed"] if seed is None else seed)
+    return net.init_params(key, cfg["width"], tuple(cfg["dilations"]), cfg["out_bias"])
+
+
 def _leaves(tree):
     import jax
 
@@ -376,13 +385,11 @@ def load_checkpoint(path: str, cfg: dict | None = None):
     import jax
     import jax.numpy as jnp
 
-    from . import net
-
     with np.load(path, allow_pickle=False) as z:
         data = {k: z[k] for k in z.files}
     stored = dict(DEFAULTS, **json.loads(str(data["config"])))
     cfg = stored if cfg is None else cfg
-    params0 = net.init_params(jax.random.PRNGKey(0), cfg["width"], tuple(cfg["dilations"]), cfg["out_bias"])
+    params0 = initial_params(cfg, 0)  # only the tree structure is used
     opt = make_fns(cfg)[2]
     opt0 = opt.init(params0)
     tdef_p = jax.tree_util.tree_structure(params0)
@@ -449,10 +456,7 @@ def train(cfg: dict, out: str, resume: bool = False, log=sys.stderr, max_steps: 
     """Train per ``cfg``; checkpoints in ``out``. Returns (params, history).
     ``max_steps``: stop (with a checkpoint) after this many steps of this
     call, for tests of resuming."""
-    import jax
-
     from stablelego_jax.blas import one_blas_thread
-    from . import net
 
     os.makedirs(out, exist_ok=True)
     ckpt = os.path.join(out, "checkpoint.npz")
@@ -464,8 +468,7 @@ def train(cfg: dict, out: str, resume: bool = False, log=sys.stderr, max_steps: 
             raise ConfigError(f"{ckpt}: checkpoint was trained with a different config ({', '.join(diff)})")
         print(f"resuming from {ckpt} at step {step}", file=log)
     else:
-        params = net.init_params(jax.random.PRNGKey(cfg["seed"]), cfg["width"], tuple(cfg["dilations"]),
-                                 cfg["out_bias"])
+        params = initial_params(cfg)
         opt_state = opt.init(params)
         step, rng, history = 0, np.random.default_rng(cfg["seed"]), []
     train_shapes, val, held = dataset(cfg, validation=True)
