@@ -145,6 +145,27 @@ def test_subset_shares_keep_every_cell_whole():
     assert float(g[0, 3]) == 0.0
 
 
+def test_tempered_shares_reach_a_losing_alternative():
+    # placement 0: 1x1 on cell a at p ~ 1; placement 1: a 1x2 alternative on cells a, b
+    # at p = 1e-4; placement 2: 1x1 on cell b at p ~ 1
+    inc = np.zeros((1, 2, 3))
+    inc[0, 0, [0, 1]] = 1
+    inc[0, 1, [1, 2]] = 1
+    ps = jnp.asarray([[0.999, 1e-4, 0.999]])
+    grads = {}
+    for power in (1.0, 0.25):
+        w = np.asarray(net.subset_shares(ps, jnp.asarray(inc), power=power))[0]
+        # the cells keep their full mass either way
+        np.testing.assert_allclose(inc[0] @ w, 1.0)
+        g = jax.grad(lambda a: net.subset_shares(jax.nn.sigmoid(a), jnp.asarray(inc), power=power)[0, 1])(
+            jnp.log(ps / (1 - ps)))
+        grads[power] = float(g[0, 1])  # d share / d logit of the alternative
+    # tempered: the alternative holds (1e-4)^0.25 / (0.999^0.25 + ...) ~ 0.09 of its cells
+    w = np.asarray(net.subset_shares(ps, jnp.asarray(inc), power=0.25))[0]
+    assert 0.05 < w[1] < 0.15
+    assert grads[1.0] < 2e-4 and grads[0.25] > 100 * grads[1.0]
+
+
 def test_grad_floor_moves_saturated_placements(tmp_path):
     # with the network's output bias far negative every probability is ~0, so
     # d p / d logit ~ 0: without the floor the stability term cannot move anything
@@ -165,8 +186,34 @@ def test_grad_floor_moves_saturated_placements(tmp_path):
 
 
 def test_config_rejects_unknown_choices(tmp_path):
-    for key, val in (("subset_base", "partial"), ("share_scope", "cells"), ("lr_schedule", "linear")):
+    for key, val in (("subset_base", "partial"), ("share_scope", "cells"), ("lr_schedule", "linear"),
+                     ("random_pool", "all")):
         bad = tmp_path / "bad.json"
         bad.write_text(json.dumps({key: val}))
         with pytest.raises(T.ConfigError, match=f"bad.json.*'{key}' must be one of"):
             T.load_config(str(bad))
+
+
+def test_share_power_must_be_in_range(tmp_path):
+    bad = tmp_path / "bad.json"
+    bad.write_text(json.dumps({"share_power": 0.0}))
+    with pytest.raises(T.ConfigError, match="bad.json.*share_power"):
+        T.load_config(str(bad))
+
+
+def test_random_pool_valid_draws_beyond_the_spanning_placements(tmp_path):
+    # a solid box has no overhang, so no spanning placements: with the default
+    # pool the random competitors are none, with "valid" they are drawn from
+    # every valid placement (e.g. a 2x1 that could replace two 1x1 in a column)
+    box = procedural_shape(0, kind="box")
+    sizes = {}
+    for pool in ("span", "valid"):
+        cfg = _cfg(tmp_path, random_pool=pool, competitors=0, random_competitors=6, subset_base="filled")
+        arr = T.Arrays([box], cfg["crop"], cfg["grid"])
+        assert not arr.span.any()
+        p = np.where(arr.valid[0], 0.2, 0.0)
+        sub = T.select_subset(p, arr.valid[0], cfg, np.random.default_rng(0), arr.span[0])
+        dec = len(net.decode(p, cfg["threshold"], True, arr.valid[0])[0])
+        sizes[pool] = int(sub.mask.sum()) - dec
+        assert arr.valid[0].ravel()[sub.fi[sub.mask]].all()
+    assert sizes == {"span": 0, "valid": 6}

@@ -187,7 +187,7 @@ def existence_weights(p, cov, floor: float = 1e-3):
     return p / jnp.maximum(M, floor)
 
 
-def subset_shares(ps, inc, floor: float = 1e-3):
+def subset_shares(ps, inc, floor: float = 1e-3, power: float = 1.0):
     """(B, n) existence weights of a subset of placements: each one's share
     of its most contested cell *within the subset*, ``p / max(M, floor)``
     with M the largest over its cells of the summed probability of the
@@ -199,7 +199,15 @@ def subset_shares(ps, inc, floor: float = 1e-3):
     probability; where alternatives overlap they split the cell in the
     ratio of their probabilities, so every cell of the subset keeps (about)
     its full mass and the stability term can lower its loss only by moving
-    probability from one brick to another, never by leaving a cell empty."""
+    probability from one brick to another, never by leaving a cell empty.
+
+    ``power`` < 1: the shares are those of ``ps ** power`` (tempered): an
+    alternative of probability 1e-4 next to a brick of probability 1 takes
+    a share of about 1e-4 ** power instead of 1e-4, so a better but
+    currently losing alternative still receives a useful gradient (the
+    gradient of an untempered share vanishes with the loser's p)."""
+    if power != 1.0:
+        ps = jnp.where(ps > 0, jnp.where(ps > 0, ps, 1.0) ** power, 0.0)
     cov = jnp.einsum("bcn,bn->bc", inc, ps)
     M = jnp.max(inc * cov[:, :, None], axis=1)
     return ps / jnp.maximum(M, floor)

@@ -61,6 +61,7 @@ DEFAULTS = {
     "bin_weight": 0.1,
     "bin_weight_final": 1.0,
     "share_floor": 0.5,
+    "share_power": 1.0,
     "under_weight": 1.0,
     "threshold": 0.5,
     "n_pad": 48,
@@ -76,6 +77,7 @@ DEFAULTS = {
     "lr_final_frac": 0.05,
     "competitors": 12,
     "random_competitors": 4,
+    "random_pool": "span",
     "temperature": 0.02,
     "checkpoint_every": 50,
     "eval_every": 50,
@@ -122,11 +124,14 @@ def load_config(path: str, **overrides) -> dict:
             isinstance(c, int) and 8 <= c <= cfg["grid"] for c in cfg["crop"][:2]) and 1 <= cfg["crop"][2] <= cfg["grid"]):
         raise ConfigError(f"{path}: crop must be [cx, cy, cz] with 8 <= cx, cy <= grid and 1 <= cz <= grid")
     for k, allowed in (("subset_base", ("strict", "filled")), ("share_scope", ("all", "subset")),
+                       ("random_pool", ("span", "valid")),
                         ("lr_schedule", ("constant", "cosine"))):
         if cfg[k] not in allowed:
             raise ConfigError(f"{path}: config key {k!r} must be one of {', '.join(allowed)}, got {cfg[k]!r}")
     if cfg["lam"] < 0 or not 0 < cfg["threshold"] <= 1:
         raise ConfigError(f"{path}: need lam >= 0 and 0 < threshold <= 1")
+    if not 0 < cfg["share_power"] <= 1:
+        raise ConfigError(f"{path}: need 0 < share_power <= 1, got {cfg['share_power']}")
     if cfg["mesh_dir"] is not None and not os.path.isabs(cfg["mesh_dir"]):
         cfg["mesh_dir"] = os.path.normpath(os.path.join(REPO, cfg["mesh_dir"]))
     if cfg["mesh_dir"] is not None and not os.path.isdir(cfg["mesh_dir"]):
@@ -208,7 +213,7 @@ def select_subset(p: np.ndarray, valid: np.ndarray, cfg: dict, rng: np.random.Ge
     problem), then the ``competitors`` most probable others, then
     ``random_competitors`` random ones among the ``span`` placements (those
     that reach from a supported cell into an overhang; all valid ones when
-    None), and drops from the end until the compiled problem fits
+    None or when ``random_pool`` is "valid"), and drops from the end until the compiled problem fits
     (n_pad, m_pad, p_pad, c_pad), keeping at least the competitors' share free.
     """
     from stablelego_jax.layout import cells_of
@@ -224,7 +229,7 @@ def select_subset(p: np.ndarray, valid: np.ndarray, cfg: dict, rng: np.random.Ge
     vflat = np.nonzero(valid.ravel())[0]
     others = np.setdiff1d(vflat, dec)
     top = others[np.argsort(-flat_p[others], kind="stable")[: cfg["competitors"]]]
-    pool = np.nonzero((valid if span is None else span).ravel())[0]
+    pool = np.nonzero((valid if span is None or cfg["random_pool"] == "valid" else span).ravel())[0]
     rest = np.setdiff1d(pool, np.concatenate([dec, top]))
     rnd = rng.choice(rest, size=min(cfg["random_competitors"], len(rest)), replace=False) if len(rest) else rest
     chosen = np.concatenate([dec, top, rnd]).astype(np.int64)[: cfg["n_pad"]]
@@ -315,7 +320,7 @@ def _make_fns(key: str):
         binar = (p * (1.0 - p)).reshape(B, -1).sum(1).mean()
         if cfg["share_scope"] == "subset":
             ps = jnp.take_along_axis(p_g.reshape(B, -1), fi, axis=1) * mask
-            w = net.subset_shares(ps, inc, cfg["share_floor"])
+            w = net.subset_shares(ps, inc, cfg["share_floor"], cfg["share_power"])
         else:
             wts = net.existence_weights(p_g, cov, cfg["share_floor"])
             w = jnp.take_along_axis(wts.reshape(B, -1), fi, axis=1) * mask
