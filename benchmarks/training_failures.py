@@ -20,6 +20,8 @@ import numpy as np
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, REPO)
 
+from training.train import SPLITS  # noqa: E402
+
 
 def failures(ckpt: str, split: str = "val") -> dict:
     """Counts over the split's falling filled layouts (keys as printed)."""
@@ -28,8 +30,7 @@ def failures(ckpt: str, split: str = "val") -> dict:
     from training.net import decode
 
     params, _, _, _, cfg, _ = T.load_checkpoint(ckpt)
-    tr, val, held = T.dataset(cfg, validation=True)
-    shapes = {"val": val, "heldout": held, "train": tr}[split]
+    shapes = T.split_shapes(cfg, split)
     arr = T.Arrays(shapes, cfg["crop"], cfg["grid"])
     p = np.asarray(T.make_fns(cfg)[0](params, arr.x, arr.valid))
     c = dict(shapes=len(shapes), falling=0, failing_bricks=0, one_by_one=0, fill_ins=0, one_by_one_fill_ins=0,
@@ -58,7 +59,7 @@ def failures(ckpt: str, split: str = "val") -> dict:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--checkpoint", required=True)
-    ap.add_argument("--split", default="val", choices=("val", "heldout", "train"))
+    ap.add_argument("--split", default="val", choices=SPLITS)
     a = ap.parse_args(argv)
     if not os.path.isfile(a.checkpoint):
         print(f"error: {a.checkpoint}: checkpoint not found", file=sys.stderr)

@@ -42,7 +42,7 @@ import jax
 import numpy as np
 
 from .api import Analysis, analyze_layout
-from .blas import one_blas_thread  # noqa: F401  (re-exported: repair.one_blas_thread)
+from .blas import one_blas_thread
 from .layout import TABLE_I_MASS_KG, Layout, cells_of
 from .loss import LossOptions, stability_loss
 from .model import Params

@@ -7,7 +7,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from stablelego_jax.repair import one_blas_thread
+from stablelego_jax.blas import one_blas_thread
 from training import net
 from training import train as T
 from training.shapes import procedural_shape

@@ -30,14 +30,15 @@ import numpy as np
 
 from stablelego_jax.io import atomic_write_text
 
+from .train import SPLITS
+
 
 def evaluate(ckpt: str, split: str = "heldout", heuristic: bool = False, untrained: bool = False) -> list[dict]:
     """Rows (one per shape and method) for the checkpoint ``ckpt``."""
-    from .train import Arrays, dataset, decode_and_score, initial_params, load_checkpoint, make_fns, score_layout
+    from .train import Arrays, decode_and_score, initial_params, load_checkpoint, make_fns, score_layout, split_shapes
 
     params, _, step, _, cfg, _ = load_checkpoint(ckpt)
-    train_shapes, val, held = dataset(cfg, validation=True)
-    shapes = {"heldout": held, "val": val, "train": train_shapes}[split]
+    shapes = split_shapes(cfg, split)
     arr = Arrays(shapes, cfg["crop"], cfg["grid"])
     probs_fn = make_fns(cfg)[0]
     from stablelego_jax.blas import one_blas_thread
@@ -81,7 +82,7 @@ def main(argv=None) -> int:
     ap.add_argument("--heuristic", action="store_true", help="also score the merge heuristic on the same shapes")
     ap.add_argument("--untrained", action="store_true",
                     help="also score the same network at initialisation (same config and seed)")
-    ap.add_argument("--split", choices=("heldout", "val", "train"), default="heldout")
+    ap.add_argument("--split", choices=SPLITS, default="heldout")
     a = ap.parse_args(argv)
     if not os.path.isfile(a.checkpoint):
         print(f"error: {a.checkpoint}: checkpoint not found", file=sys.stderr)

@@ -165,6 +165,16 @@ def dataset(cfg: dict, validation: bool = False):
     return (train, val, he) if validation else (train, he)
 
 
+#: the splits :func:`split_shapes` knows
+SPLITS = ("heldout", "val", "train")
+
+
+def split_shapes(cfg: dict, split: str):
+    """The shapes of one split of :func:`dataset` (``validation=True``): one of :data:`SPLITS`."""
+    train, val, held = dataset(cfg, validation=True)
+    return {"heldout": held, "val": val, "train": train}[split]
+
+
 class Arrays:
     """Per-shape network inputs on the crop around each shape (see
     :func:`training.net.apply`): features (S, cx, cy, cz, 4) float32, valid
