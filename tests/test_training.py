@@ -217,3 +217,34 @@ def test_random_pool_valid_draws_beyond_the_spanning_placements(tmp_path):
         sizes[pool] = int(sub.mask.sum()) - dec
         assert arr.valid[0].ravel()[sub.fi[sub.mask]].all()
     assert sizes == {"span": 0, "valid": 6}
+
+
+def test_brick_weight_charges_each_placement(tmp_path):
+    # a 2x4x1 slab tiled exactly (fidelity error 0) once by eight 1x1 bricks
+    # and once by one 2x4: with brick_weight the fidelity term is
+    # brick_weight * (number of bricks), so the 2x4 tiling is cheaper
+    vox = np.zeros((10, 10, 6), bool)
+    vox[:2, :4, 0] = True
+    valid = net.valid_placements(vox)[None]
+    k11, k24 = net.TYPES.index((1, 1)), net.TYPES.index((2, 4))
+    # a network with no hidden layer: logit = 120 * (input channel c of the
+    # type) - 60, so p = 1 where that channel is 1 and ~1e-26 elsewhere
+    w = np.zeros((1, 1, 1, net.N_FEATURES, len(net.TYPES)), np.float32)
+    w[0, 0, 0, 0, k11] = w[0, 0, 0, 1, k24] = 120.0
+    params = [(jnp.asarray(w), jnp.full((len(net.TYPES),), -60.0, jnp.float32))]
+    x_ones = np.zeros((1, 10, 10, 6, net.N_FEATURES), np.float32)
+    x_ones[0, ..., 0] = vox  # a 1x1 on every cell of the slab
+    x_big = np.zeros_like(x_ones)
+    x_big[0, 0, 0, 0, 1] = 1.0  # one 2x4 at the corner
+    fid = {}
+    for bw in (0.0, 0.3):
+        cfg = _cfg(tmp_path, brick_weight=bw, dilations=[])
+        probs_fn, _, _, terms, _ = T.make_fns(cfg)
+        for name, x in (("ones", x_ones), ("big", x_big)):
+            p = np.asarray(probs_fn(params, x, valid))
+            assert p.sum() == pytest.approx(8 if name == "ones" else 1, rel=1e-9)
+            sub = T.batch_subsets(p, valid, cfg, np.random.default_rng(0))
+            fid[bw, name] = float(terms(params, x, valid, vox[None], *sub)[0])
+    assert fid[0.0, "ones"] < 1e-9 and fid[0.0, "big"] < 1e-9
+    assert fid[0.3, "ones"] == pytest.approx(0.3 * 8, rel=1e-6)
+    assert fid[0.3, "big"] == pytest.approx(0.3 * 1, rel=1e-6)

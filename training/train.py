@@ -8,7 +8,9 @@ Loss per shape (B shapes per step, averaged):
 * fidelity: the sum over target cells of (coverage - 1)^2, times
   ``under_weight`` where coverage < 1 (a cell left out costs more than a
   cell claimed twice on the way from one brick to another); coverage = the
-  sum of the probabilities of the placements covering the cell; plus ``bin_weight`` * the sum of p (1 - p) over placements
+  sum of the probabilities of the placements covering the cell; plus
+  ``brick_weight`` * the sum of p over placements (a cost per brick, so
+  fewer, larger bricks tile the shape more cheaply than 1x1s); plus ``bin_weight`` * the sum of p (1 - p) over placements
   (pushes probabilities to 0 or 1; its weight ramps up over the run);
 * stability: :func:`stablelego_jax.loss.stability_loss` of the soft layout
   over a subset of the placements, with existence weights = the generator's
@@ -63,6 +65,7 @@ DEFAULTS = {
     "share_floor": 0.5,
     "share_power": 1.0,
     "under_weight": 1.0,
+    "brick_weight": 0.0,
     "threshold": 0.5,
     "n_pad": 48,
     "m_pad": 2048,
@@ -327,6 +330,8 @@ def _make_fns(key: str):
         cov = net.coverage(p_g)
         err = jnp.where(cov < 1.0, cfg["under_weight"], 1.0) * (cov - 1.0) ** 2
         fid = jnp.where(target, err, 0.0).reshape(B, -1).sum(1).mean()
+        if cfg["brick_weight"] > 0:  # economy: each placement's probability costs brick_weight
+            fid = fid + cfg["brick_weight"] * p_g.reshape(B, -1).sum(1).mean()
         binar = (p * (1.0 - p)).reshape(B, -1).sum(1).mean()
         if cfg["share_scope"] == "subset":
             ps = jnp.take_along_axis(p_g.reshape(B, -1), fi, axis=1) * mask
