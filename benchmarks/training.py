@@ -4,8 +4,9 @@
         [--lams 0,LAM] [--seeds 0,1,2] [--runs out/training_runs] [--jobs 2]
 
 Trains one generator per (lambda, seed) with ``python -m training.train``
-(``--resume``: finished runs are reused, interrupted ones continue from
-their checkpoint), at most ``--jobs`` at once, evaluates each on the
+(``--resume``: finished runs are reused if their stored config matches,
+else it stops with exit 2; interrupted ones continue from their
+checkpoint), at most ``--jobs`` at once, evaluates each on the
 held-out shapes with ``python -m training.evaluate`` (exact solver), scores
 the merge heuristic of ``generators/`` on the same shapes, and writes
 ``benchmarks/results/training.json`` and ``training_curves.png``; prints a
@@ -73,9 +74,23 @@ def main(argv=None) -> int:
     py = sys.executable
     runs = {(lam, s): os.path.join(a.runs, f"lam{lam:g}_seed{s}") for lam in lams for s in seeds}
     cmds = []
+    from training.train import ConfigError, load_config
+
     for (lam, s), d in runs.items():
         hist = os.path.join(d, "history.json")
         if os.path.exists(hist):
+            try:
+                want = load_config(a.config, lam=lam, seed=s)
+            except ConfigError as exc:
+                print(f"error: {exc}", file=sys.stderr)
+                return 2
+            with open(hist) as fh:
+                have = json.load(fh)["config"]
+            diff = sorted(k for k in want if have.get(k) != want[k])
+            if diff:
+                print(f"error: {d} was trained with a different config ({', '.join(diff)}); "
+                      f"pass another --runs folder", file=sys.stderr)
+                return 2
             continue
         os.makedirs(d, exist_ok=True)
         cmds.append((f"train lam={lam:g} seed={s}", [py, "-m", "training.train", "--config", a.config, "--lam", str(lam),
@@ -188,7 +203,7 @@ def _plot(curves, lams, seeds, path):
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    keys = [("fidelity", "fidelity (sum of (coverage-1)^2)"), ("stability", "stability loss (mean per shape)"),
+    keys = [("fidelity", "fidelity (sum of (coverage-1)^2 + brick cost)"), ("stability", "stability loss (mean per shape)"),
             ("heldout_stable", "held-out stable fraction, strict (exact)"), ("heldout_iou", "held-out IoU, strict"),
             ("heldout_stable_filled", "held-out stable fraction, filled (exact)"),
             ("val_stable_filled", "validation stable fraction, filled (exact)")]
