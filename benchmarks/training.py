@@ -70,28 +70,29 @@ def main(argv=None) -> int:
     a = ap.parse_args(argv)
     lams = [float(x) for x in (a.lams or "0,1000").split(",")]
     seeds = [int(x) for x in a.seeds.split(",")]
-    os.makedirs(a.runs, exist_ok=True)
-    py = sys.executable
-    runs = {(lam, s): os.path.join(a.runs, f"lam{lam:g}_seed{s}") for lam in lams for s in seeds}
-    cmds = []
-    from training.train import ConfigError, load_config
+    from training.train import ConfigError, config_diff, load_config
 
-    for (lam, s), d in runs.items():
+    try:
+        base = load_config(a.config)
+    except ConfigError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    runs = {(lam, s): os.path.join(a.runs, f"lam{lam:g}_seed{s}") for lam in lams for s in seeds}
+    todo = []
+    for (lam, s), d in runs.items():  # every finished run checked before anything is written
         hist = os.path.join(d, "history.json")
-        if os.path.exists(hist):
-            try:
-                want = load_config(a.config, lam=lam, seed=s)
-            except ConfigError as exc:
-                print(f"error: {exc}", file=sys.stderr)
-                return 2
-            with open(hist) as fh:
-                have = json.load(fh)["config"]
-            diff = sorted(k for k in want if have.get(k) != want[k])
-            if diff:
-                print(f"error: {d} was trained with a different config ({', '.join(diff)}); "
-                      f"pass another --runs folder", file=sys.stderr)
-                return 2
+        if not os.path.exists(hist):
+            todo.append((lam, s, d))
             continue
+        with open(hist) as fh:
+            diff = config_diff(json.load(fh)["config"], dict(base, lam=lam, seed=s))
+        if diff:
+            print(f"error: {d} was trained with a different config ({', '.join(diff)}); "
+                  f"pass another --runs folder", file=sys.stderr)
+            return 2
+    py = sys.executable
+    cmds = []
+    for lam, s, d in todo:
         os.makedirs(d, exist_ok=True)
         cmds.append((f"train lam={lam:g} seed={s}", [py, "-m", "training.train", "--config", a.config, "--lam", str(lam),
                                                      "--seed", str(s), "--out", d, "--resume"],

@@ -168,6 +168,11 @@ def dataset(cfg: dict, validation: bool = False):
     return (train, val, he) if validation else (train, he)
 
 
+def config_diff(stored: dict, cfg: dict, ignore=()) -> list[str]:
+    """The keys of ``cfg`` (sorted) whose value in ``stored`` differs, except ``ignore``."""
+    return sorted(k for k in cfg if k not in ignore and stored.get(k) != cfg[k])
+
+
 #: the splits :func:`split_shapes` knows
 SPLITS = ("heldout", "val", "train")
 
@@ -483,7 +488,7 @@ def train(cfg: dict, out: str, resume: bool = False, log=sys.stderr, max_steps: 
     probs_fn, step_fn, opt = make_fns(cfg)[:3]
     if resume and os.path.exists(ckpt):
         params, opt_state, step, rng, stored, history = load_checkpoint(ckpt, cfg)
-        diff = [k for k in cfg if k != "steps" and stored.get(k) != cfg[k]]
+        diff = config_diff(stored, cfg, ignore=("steps",))
         if diff:
             raise ConfigError(f"{ckpt}: checkpoint was trained with a different config ({', '.join(diff)})")
         print(f"resuming from {ckpt} at step {step}", file=log)
