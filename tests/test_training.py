@@ -248,3 +248,12 @@ def test_brick_weight_charges_each_placement(tmp_path):
     assert fid[0.0, "ones"] < 1e-9 and fid[0.0, "big"] < 1e-9
     assert fid[0.3, "ones"] == pytest.approx(0.3 * 8, rel=1e-6)
     assert fid[0.3, "big"] == pytest.approx(0.3 * 1, rel=1e-6)
+
+
+def test_config_diff_names_the_changed_keys(tmp_path):
+    # train --resume and benchmarks/training.py's reuse check both rely on it
+    a = _cfg(tmp_path)
+    b = dict(a, lr=0.02, steps=a["steps"] + 10, brick_weight=0.1)
+    assert T.config_diff(a, a) == []
+    assert T.config_diff(a, b) == ["brick_weight", "lr", "steps"]
+    assert T.config_diff(a, b, ignore=("steps",)) == ["brick_weight", "lr"]
