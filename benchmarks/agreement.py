@@ -2,7 +2,7 @@
 
 Usage: python benchmarks/agreement.py [--n 300] [--out benchmarks/results/agreement.jsonl]
 
-For each seeded layout from ``generators.procedural.random_family_layout``
+For each seeded layout from ``stablelego_jax.generate.procedural.random_family_layout``
 (stairs, loaded stairs, levers, towers, bridges, walls, cuboids, pallets,
 voxel shapes merged into bricks, layouts with floating bricks) it solves the
 same compiled model with both solvers and prints: label agreement, agreement
@@ -24,11 +24,11 @@ sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
 
 import numpy as np  # noqa: E402
 
-from generators.procedural import random_family_layout  # noqa: E402
-from stablelego_jax.api import analyze_layout  # noqa: E402
+from stablelego_jax.generate.procedural import random_family_layout  # noqa: E402
+from stablelego_jax.analysis import analyze_layout  # noqa: E402
 from stablelego_jax.batch import read_results  # noqa: E402
-from stablelego_jax.io import atomic_write_text  # noqa: E402
-from stablelego_jax.solver import SolverOptions  # noqa: E402
+from stablelego_jax.files import atomic_write_text  # noqa: E402
+from stablelego_jax.solvers.admm import SolverOptions  # noqa: E402
 
 # rows computed with other solver settings are recomputed, never mixed in
 SETTINGS = repr(SolverOptions())

@@ -7,7 +7,7 @@ Usage: python benchmarks/blas_threads.py [--n 64] [--hogs 2]
 ``throughput_jax.jsonl`` lists them) are scored twice in one process with
 the JAX interior point; the second pass (everything compiled) is timed.
 ``score_files`` now always runs with one thread; the default arm calls its
-unwrapped body ``batch._score_files``. ``--hogs K`` starts K busy-looping
+unwrapped body ``batch.score_files.__wrapped__``. ``--hogs K`` starts K busy-looping
 processes for the loaded runs. Prints one JSON line per run.
 """
 from __future__ import annotations
@@ -48,7 +48,7 @@ def main() -> None:
     recs = [json.loads(line) for line in open(os.path.join(HERE, "results", "throughput_jax.jsonl"))]
     files = [os.path.join(HERE, "results", "shard500", os.path.basename(r["file"]))
              for r in recs if 30 <= r.get("n_bricks", 0) <= 60][: args.n]
-    arms = (("default threads", batch._score_files), ("one thread", batch.score_files))
+    arms = (("default threads", batch.score_files.__wrapped__), ("one thread", batch.score_files))
     for load in (0, args.hogs):
         hogs = [mp.Process(target=_hog, daemon=True) for _ in range(load)]
         for h in hogs:

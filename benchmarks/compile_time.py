@@ -9,8 +9,8 @@ import time
 
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
 
-from generators.procedural import cuboid, random_family_layout  # noqa: E402
-from generators.voxels import merge_voxels  # noqa: E402
+from stablelego_jax.generate.procedural import cuboid  # noqa: E402
+from stablelego_jax.generate.voxels import merge_voxels  # noqa: E402
 from stablelego_jax.model import compile_layout  # noqa: E402
 import numpy as np  # noqa: E402
 

@@ -35,10 +35,10 @@ sys.path.insert(0, HERE)
 
 import numpy as np  # noqa: E402
 
-from generators.procedural import cuboid  # noqa: E402
-from generators.voxels import merge_voxels, random_blob  # noqa: E402
-from stablelego_jax.api import analyze_layout  # noqa: E402
-from stablelego_jax.baselines import METHODS, solve_baseline  # noqa: E402
+from stablelego_jax.generate.procedural import cuboid  # noqa: E402
+from stablelego_jax.generate.voxels import merge_voxels, random_blob  # noqa: E402
+from stablelego_jax.analysis import analyze_layout  # noqa: E402
+from stablelego_jax.solvers.baselines import METHODS, solve_baseline  # noqa: E402
 from stablelego_jax.model import compile_layout  # noqa: E402
 from table2 import generated_layouts  # noqa: E402
 

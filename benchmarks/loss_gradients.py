@@ -4,7 +4,7 @@ finite differences, and agreement of its zero-temperature verdict with Eq. 10.
 Usage: python benchmarks/loss_gradients.py [--n-fd 12] [--n-verdict 60] [--out benchmarks/results/loss_gradients.json]
 
 * Gradients: on the paper's eight structures and on generated layouts
-  (``generators.procedural.random_family_layout``, at most 60 bricks), each
+  (``stablelego_jax.generate.procedural.random_family_layout``, at most 60 bricks), each
   with random interior weights (a third of the bricks at weights in [0.3,
   0.9], a smooth point inside (0, 1)) and random extra loads (0-50 g on a
   third of the bricks); d loss / d weight and d loss / d load from the
@@ -37,11 +37,17 @@ sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
 import jax  # noqa: E402
 import numpy as np  # noqa: E402
 
-from generators.procedural import random_family_layout  # noqa: E402
-from stablelego_jax.api import analyze_layout  # noqa: E402
-from stablelego_jax.io import atomic_write_text, load_layout  # noqa: E402
+# this script jits and differentiates the loss itself, on float64 inputs (the
+# library is float64 inside whatever the caller's setting; its inputs are not)
+jax.config.update("jax_enable_x64", True)
+
+from stablelego_jax.analysis import analyze_layout  # noqa: E402
+from stablelego_jax.files import atomic_write_text  # noqa: E402
+from stablelego_jax.formats.reader import load_layout  # noqa: E402
+from stablelego_jax.generate.procedural import random_family_layout  # noqa: E402
 from stablelego_jax.loss import LossOptions, soft_report, stability_loss  # noqa: E402
-from stablelego_jax.soft import pad_soft, soft_problem  # noqa: E402
+from stablelego_jax.soft import soft_problem  # noqa: E402
+from stablelego_jax.solvers.problem import pad_soft  # noqa: E402
 
 SHAPE = (64, 2048, 32)
 FLOOR = 1e-8  # gradient components below this (loss in units of T) are FD rounding noise

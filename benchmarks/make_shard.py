@@ -21,9 +21,9 @@ sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
 
 import numpy as np  # noqa: E402
 
-from generators.procedural import random_family_layout  # noqa: E402
-from generators.voxels import SHAPE_KINDS, merge_voxels, random_blob, random_voxel_shape  # noqa: E402
-from stablelego_jax.io import write_layout  # noqa: E402
+from stablelego_jax.generate.procedural import random_family_layout  # noqa: E402
+from stablelego_jax.generate.voxels import SHAPE_KINDS, merge_voxels, random_blob, random_voxel_shape  # noqa: E402
+from stablelego_jax.formats.reader import write_layout  # noqa: E402
 
 
 def shard_layouts(n: int, seed: int = 0):

@@ -2,8 +2,8 @@
 
 Usage: python benchmarks/meshes.py [--meshes DIR] [--grid 20] [--solver exact|jax] [--shard DIR]
 
-Per mesh: voxelise (generators.mesh.voxelize, up axis below), merge into
-bricks (generators.voxels.merge_voxels, seed 0, all eight Table I bricks),
+Per mesh: voxelise (stablelego_jax.generate.mesh.voxelize, up axis below), merge into
+bricks (stablelego_jax.generate.voxels.merge_voxels, seed 0, all eight Table I bricks),
 analyse (default: exact solver, HiGHS interior point), and draw the heat
 map. Writes
   benchmarks/results/meshes.jsonl              one record per mesh
@@ -27,10 +27,10 @@ import numpy as np
 
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
 
-from generators.dataset import write_object  # noqa: E402
-from generators.mesh import MESH_SUFFIXES, MeshError, voxelize  # noqa: E402
-from generators.voxels import floating_bricks, merge_voxels  # noqa: E402
-from stablelego_jax.api import analyze_layout  # noqa: E402
+from stablelego_jax.formats.dataset import write_object  # noqa: E402
+from stablelego_jax.generate.mesh import MESH_SUFFIXES, MeshError, voxelize  # noqa: E402
+from stablelego_jax.generate.voxels import floating_bricks, merge_voxels  # noqa: E402
+from stablelego_jax.analysis import analyze_layout  # noqa: E402
 from stablelego_jax.render import contact_sheet  # noqa: E402
 
 HERE = os.path.dirname(os.path.abspath(__file__))

@@ -12,8 +12,8 @@ import time
 
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
 
-from stablelego_jax.api import analyze_layout  # noqa: E402
-from stablelego_jax.io import load_layout  # noqa: E402
+from stablelego_jax.analysis import analyze_layout  # noqa: E402
+from stablelego_jax.formats.reader import load_layout  # noqa: E402
 
 ex = os.path.join(os.path.dirname(__file__), "..", "examples")
 files = sorted(glob.glob(os.path.join(ex, "stablelego", "*.json"))) + sorted(glob.glob(os.path.join(ex, "brickgpt", "*.txt")))

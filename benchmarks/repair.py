@@ -15,10 +15,10 @@ than the brick budget ``--max-add`` are skipped (a staircase failing at
 every one of its 24 levels cannot be saved by four bricks, whatever the
 method).
 
-For each layout it runs (a) :func:`stablelego_jax.repair.repair`
-(gradient-guided), (b) :func:`~stablelego_jax.repair.greedy_repair` (every
+For each layout it runs (a) :func:`stablelego_jax.design.repair.repair`
+(gradient-guided), (b) :func:`~stablelego_jax.design.repair.greedy_repair` (every
 candidate checked with a full exact solve each step) and (c)
-:func:`~stablelego_jax.repair.rollback_repair` (remove the first failing
+:func:`~stablelego_jax.design.repair.rollback_repair` (remove the first failing
 brick and everything after it until stable), and records success (the
 exact solver says the result stands), bricks added, solver calls (exact
 HiGHS solves; the gradient method also counts each differentiable solve +
@@ -45,10 +45,10 @@ sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
 
 import numpy as np  # noqa: E402
 
-from generators.procedural import lever, stairs, tower, voxel_layout  # noqa: E402
-from stablelego_jax.api import analyze_layout  # noqa: E402
+from stablelego_jax.generate.procedural import lever, stairs, tower, voxel_layout  # noqa: E402
+from stablelego_jax.analysis import analyze_layout  # noqa: E402
 from stablelego_jax.batch import read_results  # noqa: E402
-from stablelego_jax.repair import RepairOptions, greedy_repair, repair, rollback_repair  # noqa: E402
+from stablelego_jax.design.repair import RepairOptions, greedy_repair, repair, rollback_repair  # noqa: E402
 
 FAMILIES = ("stairs", "tower", "lever", "loaded", "voxels")
 METHODS = {"gradient": repair, "greedy": greedy_repair, "rollback": rollback_repair}

@@ -26,10 +26,12 @@ sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
 
 import numpy as np  # noqa: E402
 
-from generators.procedural import cuboid  # noqa: E402
-from stablelego_jax import ipm  # noqa: E402
-from stablelego_jax.api import _jitted, analyze_layout  # noqa: E402
-from stablelego_jax.model import bucket_size, compile_layout  # noqa: E402
+from stablelego_jax.analysis import analyze_layout, solver_fn  # noqa: E402
+from stablelego_jax.generate.procedural import cuboid  # noqa: E402
+from stablelego_jax.model import compile_layout  # noqa: E402
+from stablelego_jax.solvers import ipm  # noqa: E402
+from stablelego_jax.solvers.compiled import compiled  # noqa: E402
+from stablelego_jax.solvers.problem import MIN_COLUMNS, MIN_SLOTS, plan_problem, rung, solve_plan  # noqa: E402
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 RES = os.path.join(HERE, "results")
@@ -42,23 +44,24 @@ def time_cube(k: int) -> dict:
         a = analyze_layout(lay, solver="exact")
         te.append(a.time_s)
     model = compile_layout(lay)
-    key = ipm.solve_plan(model)
-    m_pad, p_pad = bucket_size(model.m, base=64), bucket_size(model.group.shape[1], base=4)
-    _, prob = ipm.plan_problem(model, key, m_pad, p_pad)
-    fn = _jitted(model.params, ipm.IPMOptions())
+    key = solve_plan(model)
+    m_pad, p_pad = rung(model.m, MIN_COLUMNS), rung(model.group.shape[1], MIN_SLOTS)
+    _, prob = plan_problem(model, key, m_pad, p_pad)
+    arrays = tuple(a for a in prob if a is not None)
+    opts = ipm.IPMOptions()
     t0 = time.perf_counter()
-    comp = fn.lower(prob).compile()
+    comp = compiled("ipm", solver_fn(model.params, opts), (model.params, opts), arrays)
     tc = time.perf_counter() - t0
     tj, sol = [], None
     for _ in range(3):
         t0 = time.perf_counter()
-        sol = comp(prob)
-        sol.f.block_until_ready()
+        sol = comp(*arrays)
+        sol[0].block_until_ready()
         tj.append(time.perf_counter() - t0)
     ja = analyze_layout(lay, solver="jax")
     return {
         "k": k, "n_bricks": lay.n, "exact_s": float(np.median(te)), "jax_s": float(np.median(tj)),
-        "jax_compile_s": tc, "jax_iters": int(sol.iters), "jax_converged": bool(sol.converged),
+        "jax_compile_s": tc, "jax_iters": int(sol[1]), "jax_converged": bool(sol[2]),
         "stable_exact": a.stable, "stable_jax": ja.stable, "plan": list(key),
     }
 

@@ -15,12 +15,13 @@ sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
 
 import jax  # noqa: E402
 
-jax.config.update("jax_enable_x64", True)
+jax.config.update("jax_enable_x64", True)  # the script jits the solver itself, on float64 inputs
 
-from stablelego_jax.exact import solve_exact  # noqa: E402
-from stablelego_jax.io import load_layout  # noqa: E402
+from stablelego_jax.solvers.exact import solve_exact  # noqa: E402
+from stablelego_jax.formats.reader import load_layout  # noqa: E402
 from stablelego_jax.model import compile_layout  # noqa: E402
-from stablelego_jax.solver import SolverOptions, solve, to_problem  # noqa: E402
+from stablelego_jax.solvers.admm import SolverOptions, solve  # noqa: E402
+from stablelego_jax.solvers.problem import to_problem  # noqa: E402
 
 ap = argparse.ArgumentParser()
 ap.add_argument("--max-iter", type=int, default=4000)

@@ -18,7 +18,7 @@ leaves unsolved (not counted by the paper's accuracy). Sets:
   when the structures were built).
 * generated: ``--n`` seeded layouts, label = our exact answer (so ours is
   100% by construction; the point is where the baselines fail). Half are
-  ``generators.procedural.random_family_layout`` draws (stairs, loaded
+  ``stablelego_jax.generate.procedural.random_family_layout`` draws (stairs, loaded
   stairs, levers, towers, bridges, walls, cuboids, pallets, voxel shapes,
   layouts with floating bricks), half voxel shapes (blob, boxes, spheres,
   arch, overhang, floating) on 10-16 grids merged into bricks, every other
@@ -46,11 +46,12 @@ sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
 
 import numpy as np  # noqa: E402
 
-from generators.procedural import random_family_layout  # noqa: E402
-from generators.voxels import SHAPE_KINDS, floating_bricks, merge_voxels, random_voxel_shape  # noqa: E402
-from stablelego_jax.api import analyze_layout  # noqa: E402
-from stablelego_jax.baselines import METHODS  # noqa: E402
-from stablelego_jax.io import atomic_write_text, load_layout  # noqa: E402
+from stablelego_jax.generate.procedural import random_family_layout  # noqa: E402
+from stablelego_jax.generate.voxels import SHAPE_KINDS, floating_bricks, merge_voxels, random_voxel_shape  # noqa: E402
+from stablelego_jax.analysis import analyze_layout  # noqa: E402
+from stablelego_jax.solvers.baselines import METHODS  # noqa: E402
+from stablelego_jax.files import atomic_write_text
+from stablelego_jax.formats.reader import load_layout  # noqa: E402
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 RES = os.path.join(HERE, "results")
@@ -95,7 +96,7 @@ def reference_layouts():
 
 
 def _mesh_layouts(grid: int = 20):
-    from generators.mesh import MESH_SUFFIXES, voxelize
+    from stablelego_jax.generate.mesh import MESH_SUFFIXES, voxelize
 
     sys.path.insert(0, HERE)
     from meshes import Y_UP  # the up axes chosen for benchmarks/meshes.py

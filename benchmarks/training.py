@@ -1,14 +1,14 @@
 """Issue 6 benchmark: the generator trained with and without the stability loss.
 
-    python benchmarks/training.py [--config training/configs/default.json]
+    python benchmarks/training.py [--config stablelego_jax/train/configs/default.json]
         [--lams 0,LAM] [--seeds 0,1,2] [--runs out/training_runs] [--jobs 2]
 
-Trains one generator per (lambda, seed) with ``python -m training.train``
+Trains one generator per (lambda, seed) with ``stablelego train`` (``python -m stablelego_jax train``)
 (``--resume``: finished runs are reused if their stored config matches,
 else it stops with exit 2; interrupted ones continue from their
 checkpoint), at most ``--jobs`` at once, evaluates each on the
-held-out shapes with ``python -m training.evaluate`` (exact solver), scores
-the merge heuristic of ``generators/`` on the same shapes, and writes
+held-out shapes with ``stablelego evaluate`` (exact solver), scores
+the merge heuristic of ``stablelego_jax.generate.voxels`` on the same shapes, and writes
 ``benchmarks/results/training.json`` and ``training_curves.png``; prints a
 markdown table. Target (issue 6): the stability term raises the held-out
 stable fraction by >= 20 percentage points at a cost of at most 0.02 IoU
@@ -29,10 +29,10 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 REPO = os.path.dirname(HERE)
 sys.path.insert(0, REPO)
 
-from stablelego_jax.io import atomic_write, atomic_write_text  # noqa: E402
+from stablelego_jax.files import atomic_write, atomic_write_text  # noqa: E402
 
 
-#: decoding name -> evaluate's method name (see training.evaluate)
+#: decoding name -> evaluate's method name (see stablelego_jax.train.evaluate)
 DECODINGS = {"strict": "generator", "filled": "generator_filled"}
 
 
@@ -61,7 +61,7 @@ def _rows(path):
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--config", default=os.path.join(REPO, "training", "configs", "default.json"))
+    ap.add_argument("--config", default=os.path.join(REPO, "stablelego_jax", "train", "configs", "default.json"))
     ap.add_argument("--lams", default=None, help="comma-separated lambdas (default: 0,1000)")
     ap.add_argument("--seeds", default="0,1,2")
     ap.add_argument("--runs", default=os.path.join(REPO, "out", "training_runs"))
@@ -70,7 +70,7 @@ def main(argv=None) -> int:
     a = ap.parse_args(argv)
     lams = [float(x) for x in (a.lams or "0,1000").split(",")]
     seeds = [int(x) for x in a.seeds.split(",")]
-    from training.train import ConfigError, config_diff, load_config
+    from stablelego_jax.train.train import ConfigError, config_diff, load_config
 
     try:
         base = load_config(a.config)
@@ -94,7 +94,7 @@ def main(argv=None) -> int:
     cmds = []
     for lam, s, d in todo:
         os.makedirs(d, exist_ok=True)
-        cmds.append((f"train lam={lam:g} seed={s}", [py, "-m", "training.train", "--config", a.config, "--lam", str(lam),
+        cmds.append((f"train lam={lam:g} seed={s}", [py, "-m", "stablelego_jax", "train", "--config", a.config, "--lam", str(lam),
                                                      "--seed", str(s), "--out", d, "--resume"],
                      os.path.join(d, "train.log")))
     t0 = time.time()
@@ -108,7 +108,7 @@ def main(argv=None) -> int:
     for (lam, s), d in runs.items():
         res = os.path.join(d, "heldout.jsonl")
         if not os.path.exists(res):
-            argv_ = [py, "-m", "training.evaluate", "--checkpoint", os.path.join(d, "checkpoint.npz"), "--out", res]
+            argv_ = [py, "-m", "stablelego_jax", "evaluate", "--checkpoint", os.path.join(d, "checkpoint.npz"), "--out", res]
             if lam == lams[0]:
                 argv_.append("--untrained")  # the network at initialisation, once per seed
             if (lam, s) == (lams[0], seeds[0]):

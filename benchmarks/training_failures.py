@@ -3,7 +3,7 @@
     python benchmarks/training_failures.py --checkpoint OUT/checkpoint.npz [--split val]
 
 Decodes the filled layout of every shape of the split (see
-:func:`training.net.decode`), scores it with HiGHS and, over the layouts
+:func:`stablelego_jax.train.net.decode`), scores it with HiGHS and, over the layouts
 that fall, counts the failing bricks (Eq. 10 score >= 1): how many are 1x1,
 how many are fill-ins (probability < the config's threshold: put there by
 the fill, not chosen by the network), and in how many falling layouts every
@@ -20,19 +20,21 @@ import numpy as np
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, REPO)
 
-from training.train import SPLITS  # noqa: E402
+from stablelego_jax.train.shapes import SPLITS  # noqa: E402
 
 
 def failures(ckpt: str, split: str = "val") -> dict:
     """Counts over the split's falling filled layouts (keys as printed)."""
-    from stablelego_jax.api import analyze_layout
-    from training import train as T
-    from training.net import decode
+    from stablelego_jax.analysis import analyze_layout
+    from stablelego_jax.train import train as T
+    from stablelego_jax.runtime import float64
+    from stablelego_jax.train.net import decode
 
     params, _, _, _, cfg, _ = T.load_checkpoint(ckpt)
     shapes = T.split_shapes(cfg, split)
     arr = T.Arrays(shapes, cfg["crop"], cfg["grid"])
-    p = np.asarray(T.make_fns(cfg)[0](params, arr.x, arr.valid))
+    with float64():  # the trained network runs in the library's float64
+        p = np.asarray(T.make_fns(cfg)[0](params, arr.x, arr.valid))
     c = dict(shapes=len(shapes), falling=0, failing_bricks=0, one_by_one=0, fill_ins=0, one_by_one_fill_ins=0,
              all_fill_ins=0)
     for j in range(len(p)):

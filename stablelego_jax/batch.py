@@ -2,7 +2,7 @@
 resumable JSON-lines results.
 
 Flow per chunk of inputs: read and compile each layout (numpy), choose its
-solver bucket (:func:`~stablelego_jax.ipm.solve_plan`: a dense or a layer-by-layer shape for the
+solver bucket (:func:`~stablelego_jax.solvers.problem.solve_plan`: a dense or a layer-by-layer shape for the
 interior-point solver), group equal buckets, pad each group to its largest
 column count, and solve each group in batches with one jit-compiled,
 ``vmap``-ed solver per (bucket shape, batch size), split over the local
@@ -28,19 +28,31 @@ from typing import Iterable, Sequence
 import jax
 import numpy as np
 
-from .api import _finish, error_message
+from .analysis import analyze_baseline, error_message, make_analysis
 from .blas import one_blas_thread
-from .exact import solve_exact
-from .io import atomic_write, atomic_write_text, load_layout
-from .model import Params, bucket_size, compile_layout
+from .files import atomic_write, atomic_write_text
+from .formats.dataset import score_grid
+from .formats.reader import load_layout
+from .model import Params, compile_layout
 from .progress import Progress
-from .score import score_grid
-from . import ipm
-from .ipm import solve_plan
-from .solver import SolverOptions, solve, stack_problems, to_problem
+from .solvers import admm, ipm
+from .solvers.compiled import STATS, compiled
+from .solvers.exact import solve_exact
+from .solvers.problem import (
+    MIN_BRICKS,
+    MIN_COLUMNS,
+    MIN_SLOTS,
+    Problem,
+    Solution,
+    plan_problem,
+    rung,
+    solve_plan,
+    stack_problems,
+    to_problem,
+)
 
-__all__ = ["find_layouts", "read_results", "ScoreStats", "score_files", "make_batch_solver", "batch_sizes",
-           "solve_plan", "plan_bytes"]
+__all__ = ["find_layouts", "read_results", "ScoreStats", "score_files", "batch_solver_fn", "batch_sizes",
+           "plan_bytes"]
 
 LAYOUT_EXTS = (".json", ".txt", ".ldr")
 # files that sit beside StableLego layouts but are not layouts
@@ -123,23 +135,25 @@ def batch_sizes(per_layout: int, batch: int, n_dev: int, mem_budget: float = 2e9
     return max(n_dev, (b // n_dev) * n_dev)
 
 
-@functools.lru_cache(maxsize=None)
-def make_batch_solver(params: Params, opts, n_dev: int):
-    """jit(shard_map(vmap(solve))) over the first ``n_dev`` local devices;
-    ``opts``: :class:`~stablelego_jax.ipm.IPMOptions` (interior point) or
-    :class:`~stablelego_jax.solver.SolverOptions` (ADMM)."""
-    from jax.sharding import Mesh, PartitionSpec as P
+def batch_solver_fn(params: Params, opts, n_dev: int):
+    """``fn(*stacked problem arrays) -> tuple(Solution)``: ``vmap`` of the JAX
+    solver ``opts`` selects (:class:`~stablelego_jax.solvers.ipm.IPMOptions`:
+    interior point; :class:`~stablelego_jax.solvers.admm.SolverOptions`:
+    ADMM), split over the first ``n_dev`` local devices with ``shard_map``
+    (each device runs its own while-loop, so it stops as soon as its own
+    layouts have converged)."""
+    solve = ipm.solve if isinstance(opts, ipm.IPMOptions) else admm.solve
 
-    fn = ipm.solve if isinstance(opts, ipm.IPMOptions) else solve
-
-    def f(probs):
-        return jax.vmap(lambda p: fn(p, params, opts))(probs)
+    def f(*arrays):
+        return tuple(jax.vmap(lambda *a: solve(Problem(*a), params, opts))(*arrays))
 
     if n_dev <= 1:
-        return jax.jit(f)
+        return f
+    from jax.sharding import Mesh, PartitionSpec as P
+
     mesh = Mesh(np.array(jax.devices()[:n_dev]), ("batch",))
     # every value is per-device (no collectives), so skip the varying-axis type check
-    return jax.jit(jax.shard_map(f, mesh=mesh, in_specs=P("batch"), out_specs=P("batch"), check_vma=False))
+    return jax.shard_map(f, mesh=mesh, in_specs=P("batch"), out_specs=P("batch"), check_vma=False)
 
 
 @dataclasses.dataclass
@@ -192,13 +206,13 @@ def _score_files(
     """Score every layout of ``inputs`` into the JSON-lines file ``out``
     (``score_files`` runs this with one OpenBLAS thread: :mod:`~stablelego_jax.blas`).
 
-    solver: "jax" (batched interior point, :mod:`~stablelego_jax.ipm`),
-    "admm" (batched first-order ADMM, :mod:`~stablelego_jax.solver`) or
+    solver: "jax" (batched interior point, :mod:`~stablelego_jax.solvers.ipm`),
+    "admm" (batched first-order ADMM, :mod:`~stablelego_jax.solvers.admm`) or
     "exact" (HiGHS ``exact_method``, one layout at a time; ``exact_scale``:
     torque rows in N stud, the same LP, which HiGHS solves reliably on
     layouts of hundreds of bricks); opts: options of the JAX solver
     (IPMOptions / SolverOptions; None: defaults); method: "ours" or a
-    baseline ("luo", "eb"; exact solver only, see :mod:`~stablelego_jax.baselines`);
+    baseline ("luo", "eb"; exact solver only, see :mod:`~stablelego_jax.solvers.baselines`);
     batch: most layouts per solver call; devices: "all" or a count of local
     devices to shard each batch over; first_cap (ADMM only): iteration cap
     of a first pass, after which only uncertified layouts are solved again
@@ -211,7 +225,7 @@ def _score_files(
     if method != "ours" and solver != "exact":
         raise ValueError(f"method {method!r} runs on the exact solver only")
     if opts is None:
-        opts = ipm.IPMOptions() if solver == "jax" else SolverOptions()
+        opts = ipm.IPMOptions() if solver == "jax" else admm.SolverOptions()
     t_run = time.perf_counter()
     n_dev = jax.local_device_count() if devices in ("all", None) else int(devices)
     if not 1 <= n_dev <= jax.local_device_count():
@@ -223,7 +237,6 @@ def _score_files(
     bar = Progress(len(todo), stream=stream, enabled=progress, unit="layouts")
     d = os.path.dirname(os.path.abspath(out))
     os.makedirs(d, exist_ok=True)
-    compiled: dict = {}
     with open(out, "a", encoding="utf-8") as fh:
 
         def emit(recs: Iterable[dict]) -> None:
@@ -247,15 +260,14 @@ def _score_files(
                 size *= 2
             size = min(size, bsz)
             probs = probs + [probs[-1]] * (size - len(probs))
-            stacked = stack_problems(probs)
-            ck = (key, size, o)
-            if ck not in compiled:
-                t1 = time.perf_counter()
-                compiled[ck] = make_batch_solver(params, o, n_dev).lower(stacked).compile()
-                st.compile_s += time.perf_counter() - t1
-                st.compiles += 1
+            arrays = tuple(a for a in stack_problems(probs) if a is not None)
+            n0, t0c = STATS.compiles, STATS.compile_s
+            exe = compiled("batch-ipm" if isinstance(o, ipm.IPMOptions) else "batch-admm",
+                           batch_solver_fn(params, o, n_dev), (params, o, n_dev), arrays, export=n_dev == 1)
+            st.compiles += STATS.compiles - n0
+            st.compile_s += STATS.compile_s - t0c
             t1 = time.perf_counter()
-            sol = jax.device_get(compiled[ck](stacked))
+            sol = Solution(*jax.device_get(exe(*arrays)))
             dt = time.perf_counter() - t1
             st.solve_s += dt
             return sol, dt
@@ -281,10 +293,8 @@ def _score_files(
                     t1 = time.perf_counter()
                     if method == "ours":
                         r = solve_exact(model, method=exact_method, scale=exact_scale)
-                        a = _finish(lay, model, r.f, "exact", r.success, t1, objective=r.objective)
+                        a = make_analysis(lay, model, r.f, "exact", r.success, t1, objective=r.objective)
                     else:
-                        from .baselines import analyze_baseline
-
                         a = analyze_baseline(lay, model, method, t1, exact_method=exact_method, scale=exact_scale)
                     st.solve_s += a.time_s
                     emit([record(p, lay, a)])
@@ -296,16 +306,16 @@ def _score_files(
             # largest, so a run compiles one solver per bucket (and batch size)
             groups: dict = {}
             for item in loaded:
-                key = solve_plan(item[2]) if solver == "jax" else ("dense", bucket_size(item[2].n))
+                key = solve_plan(item[2]) if solver == "jax" else ("dense", rung(item[2].n, MIN_BRICKS))
                 groups.setdefault(key, []).append(item)
             for key in sorted(groups):
                 items = groups[key]
-                m_pad = bucket_size(max(it[2].m for it in items), base=64)
-                p_pad = bucket_size(max(it[2].group.shape[1] for it in items), base=4)
+                m_pad = rung(max(it[2].m for it in items), MIN_COLUMNS)
+                p_pad = rung(max(it[2].group.shape[1] for it in items), MIN_SLOTS)
                 prepared = []
                 for it in items:
                     if solver == "jax":
-                        fm, prob = ipm.plan_problem(it[2], key, m_pad, p_pad)
+                        fm, prob = plan_problem(it[2], key, m_pad, p_pad)
                     else:
                         fm = it[2].pad(key[1], m_pad, p_pad)
                         prob = to_problem(fm)
@@ -332,7 +342,7 @@ def _score_files(
                             if not last and not bool(sol.converged[i]):
                                 retry.append(sub[i])
                                 continue
-                            a = _finish(lay, fm, np.asarray(sol.f[i]), solver, bool(sol.converged[i]),
+                            a = make_analysis(lay, fm, np.asarray(sol.f[i]), solver, bool(sol.converged[i]),
                                         time.perf_counter())
                             a.time_s = spent[p][0]  # amortised share of its batch(es)
                             recs.append(record(p, lay, a, iters=spent[p][1]))

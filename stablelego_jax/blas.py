@@ -15,14 +15,14 @@ from __future__ import annotations
 import contextlib
 import functools
 
-__all__ = ["one_blas_thread"]
+__all__ = ["one_blas_thread", "openblas_library"]
 
 
 @contextlib.contextmanager
 def one_blas_thread():
     """Context manager: one thread in SciPy's OpenBLAS inside, the previous
     count restored after."""
-    lib = _openblas()
+    lib = openblas_library()
     if lib is None:
         yield
         return
@@ -35,7 +35,8 @@ def one_blas_thread():
 
 
 @functools.lru_cache(maxsize=1)
-def _openblas():
+def openblas_library():
+    """ctypes handle of SciPy's bundled OpenBLAS (None when not found)."""
     import ctypes
     import glob
     import os

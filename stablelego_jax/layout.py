@@ -26,6 +26,10 @@ __all__ = [
     "MAX_SIZE",
     "MAX_GRID_CELLS",
     "layout_voxels",
+    "cells_of",
+    "library_id_for",
+    "table_i_bricks",
+    "brick_layout",
 ]
 
 # Paper Table I, in kg, keyed by the sorted (short, long) footprint.
@@ -113,6 +117,53 @@ def default_library() -> Library:
     if _DEFAULT_LIBRARY is None:
         _DEFAULT_LIBRARY = Library.from_json(_DEFAULT_LIBRARY_PATH)
     return _DEFAULT_LIBRARY
+
+
+def library_id_for(sx: int, sy: int) -> tuple[str, int]:
+    """StableLego library id and ori of the real brick with extent (sx, sy)
+    in the default library; ("", 0) when it has none."""
+    for bid, (h, w, _) in default_library().bricks.items():
+        if bid == "1":  # the 200 g load block, not a real brick
+            continue
+        if (h, w) == (sx, sy):
+            return bid, 0
+        if (w, h) == (sx, sy):
+            return bid, 1
+    return "", 0
+
+
+def table_i_bricks(size) -> tuple[np.ndarray, tuple[str, ...], np.ndarray]:
+    """Masses (kg), library ids and ori of real bricks of extents ``size``
+    ((k, 2) studs along x and y), from paper Table I and the default
+    library. Raises ValueError naming a footprint that is not a Table I brick."""
+    size = np.asarray(size, np.int64).reshape(-1, 2)
+    mass, bids, oris = [], [], []
+    for sx, sy in size.tolist():
+        key = (min(sx, sy), max(sx, sy))
+        if key not in TABLE_I_MASS_KG:
+            raise ValueError(f"{sx}x{sy} is not a Table I brick")
+        bid, ori = library_id_for(sx, sy)
+        mass.append(TABLE_I_MASS_KG[key])
+        bids.append(bid)
+        oris.append(ori)
+    return np.asarray(mass, np.float64), tuple(bids), np.asarray(oris, np.int64)
+
+
+def brick_layout(pos, size, keys: Sequence[str] | None = None, source: str = "<memory>",
+                 fmt: str = "memory") -> "Layout":
+    """The one builder of layouts of real bricks from positions and sizes:
+    ``pos`` (k, 3) corner cells, ``size`` (k, 2) extents; masses, library ids
+    and ori from Table I and the default library; keys "1".."k" unless given.
+    LayoutError (naming ``source``) on a footprint that is not a Table I
+    brick, or any :func:`make_layout` check."""
+    pos = np.asarray(pos, np.int64).reshape(-1, 3)
+    size = np.asarray(size, np.int64).reshape(-1, 2)
+    try:
+        mass, bids, oris = table_i_bricks(size)
+    except ValueError as exc:
+        raise LayoutError(source, str(exc)) from None
+    keys = [str(i + 1) for i in range(len(pos))] if keys is None else list(keys)
+    return make_layout(keys, pos, size, mass, bids, oris, source=source, fmt=fmt)
 
 
 @dataclasses.dataclass(frozen=True, eq=False)

@@ -49,22 +49,17 @@ of adding a brick finite and physical: the faded-in brick must balance its
 own (scaled) weight through its contacts, so a candidate brick hanging in
 the air cannot help, and one standing on the baseplate can.
 
-It is solved by an infeasible primal-dual interior-point method (Mehrotra
-predictor-corrector; at most ``iters`` iterations of a ``while_loop`` that
-stops once the iterate is centred at ``mu``) in which each Newton system is
-reduced, per column and in closed form, to one dense LU factorisation of a
-(7 n x 7 n) system (n bricks): the changes of the residual rows' prices and
-of the bricks' drag maxima. The optimality conditions are written per unit
-of existence (divided by the weights), which keeps them regular at
-``w = 0``. ``jit`` and ``vmap`` work.
+It is solved by the barrier interior point of
+:mod:`stablelego_jax.solvers.soft_ipm`. ``jit`` and ``vmap`` work; the
+library's float64 is switched on inside every function here, forward and
+backward pass (:func:`stablelego_jax.runtime.x64_differentiable`), so
+callers may run JAX in float32 and take gradients with respect to
+``weights`` and ``loads``.
 
 Gradients
 ---------
-Implicit differentiation: the solver has a custom VJP that solves one
-transposed Newton system ``J^T lam = dL/dx`` at the solution (J: the
-Jacobian of the barrier problem's optimality conditions R) and returns
-``-(dR/dtheta)^T lam`` for theta = (weights, loads). Nothing is unrolled.
-Central differences agree to within 0.1% on the tests' layouts and 1.5% on
+Implicit differentiation (the solver's custom VJP, one transposed Newton
+solve at the solution; nothing is unrolled). Central differences agree to within 0.1% on the tests' layouts and 1.5% on
 the 20 layouts of ``benchmarks/loss_gradients.py``.
 
 The loss
@@ -99,17 +94,15 @@ What the gradient means physically
 from __future__ import annotations
 
 import dataclasses
-import functools
 from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
-import numpy as np
 
-from .model import KNOB, NORMAL, Params
+from .runtime import x64_differentiable
+from .score import largest_drag, residual_bad, verdict
 from .soft import SoftProblem
-
-jax.config.update("jax_enable_x64", True)
+from .solvers.soft_ipm import BarrierOptions, SoftContext, brick_residual, central_path, column_force, soft_context
 
 __all__ = [
     "LossOptions",
@@ -125,37 +118,17 @@ __all__ = [
 
 
 @dataclasses.dataclass(frozen=True)
-class LossOptions:
+class LossOptions(BarrierOptions):
     """Settings of the smooth solver and the loss (hashable: a static jit argument).
 
-    temperature: loss temperature tau (units of T) of the overload hinge.
-    mu: barrier parameter at which forces are returned and differentiated
-      (the solver's own temperature; -> 0 gives Eq. 9's LP).
-    iters: most interior-point iterations (a ``while_loop``: it stops once
-      mean(s z / w) <= 1.5 mu and every s z / w is within a factor
-      ``centred`` of mu; under ``vmap`` when every problem has stopped).
-    knob_cost: gamma, the cost (per T) of knob presses.
-    compliance: eps, the compliance of the contacts of partly existing
-      bricks (their cost ``eps (1 - w) / 2 (S^2 + D^2)`` per unit of
-      existence); 0 at w = 1. It keeps the forces a faded-in brick carries
-      proportional to its weight: with Eq. 9's linear costs alone, a brick
-      of any positive weight standing on the baseplate could carry any load
-      (the loss would jump at w = 0+).
-    tol: convergence tolerance on the optimality conditions (inf-norm,
-      scaled units) for ``SoftSolution.converged``.
+    The solver's fields (mu, iters, centred, knob_cost, compliance, tol,
+    params) are those of :class:`~stablelego_jax.solvers.soft_ipm.BarrierOptions`;
+    temperature: loss temperature tau (units of T) of the overload hinge;
     residual_smoothing: s of the smoothed |residual| in the loss (units of T).
-    params: physical parameters (T, alpha, beta, ...).
     """
 
     temperature: float = 0.02
-    mu: float = 1e-5
-    iters: int = 30
-    centred: float = 0.01
-    knob_cost: float = 1e-6
-    compliance: float = 1e-2
-    tol: float = 1e-5
     residual_smoothing: float = 1e-6
-    params: Params = Params()
 
 
 class SoftSolution(NamedTuple):
@@ -175,557 +148,80 @@ class SoftSolution(NamedTuple):
     opt_res: jnp.ndarray
 
 
-# --------------------------------------------------------------------------
-# the problem's arrays at given weights
-
-
-class _Ctx(NamedTuple):
-    """Weight-dependent constants of one problem (all JAX arrays)."""
-
-    coef: jnp.ndarray  # (m, 2, 6) scaled wrench per unit force
-    coef_t: jnp.ndarray  # (m, 2, 6) the same times the other-brick weight of each slot
-    cb: jnp.ndarray  # (m, 2)
-    g: jnp.ndarray  # (n, 6) scaled weight (with loads) per unit of existence
-    om: jnp.ndarray  # (n,) brick weights (0 for padding)
-    o0: jnp.ndarray  # (m,) weight of the slot-1 brick seen from slot 0 (1 within a unit)
-    wcol: jnp.ndarray  # (m,) column weight
-    real: jnp.ndarray  # (m,) bool real columns
-    pair: jnp.ndarray  # (m,) bool real columns with two parts S - D (NORMAL, KNOB)
-    normal: jnp.ndarray  # (m,) bool real NORMAL columns
-    knob: jnp.ndarray  # (m,) bool real KNOB columns
-    owner: jnp.ndarray  # (m,) brick whose bottom a NORMAL column is on (n: none)
-    group: jnp.ndarray  # (n, P)
-    cost: jnp.ndarray  # (n, 6) L1 weights of the scaled rows
-
-
-def _context(weights, loads, prob: SoftProblem, params: Params) -> _Ctx:
-    dtype = jnp.float64
-    n = prob.mass.shape[0]
-    s = 1.0 / params.stud
-    row = jnp.asarray([1.0, 1.0, 1.0, s, s, s], dtype)
-    cost = jnp.asarray([1.0, 1.0, 1.0, params.stud, params.stud, params.stud], dtype) * jnp.ones((n, 6), dtype)
-    w_eff = jnp.asarray(weights, dtype)[prob.unit]
-    om = jnp.where(prob.brick_mask, w_eff, 0.0)
-    om_ext = jnp.concatenate([om, jnp.ones((1,), dtype)])
-    unit_ext = jnp.concatenate([jnp.asarray(prob.unit, jnp.int32), jnp.full((1,), -1, jnp.int32)])
-    cb = jnp.asarray(prob.col_brick)
-    b0, b1 = cb[:, 0], cb[:, 1]
-    same = unit_ext[b0] == unit_ext[b1]
-    w0, w1 = om_ext[b0], om_ext[b1]
-    o0 = jnp.where(same, 1.0, w1)
-    o1 = jnp.where(same, 1.0, w0)
-    real = jnp.asarray(prob.col_mask)
-    coef = jnp.asarray(prob.col_coef, dtype) * row
-    coef_t = coef * jnp.stack([o0, o1], axis=1)[:, :, None]
-    load = jnp.zeros((n,), dtype) if loads is None else jnp.asarray(loads, dtype)
-    gz = -(jnp.asarray(prob.mass, dtype) + load) * params.g / params.T
-    g = jnp.zeros((n, 6), dtype).at[:, 2].set(jnp.where(prob.brick_mask, gz, 0.0))
-    kind = jnp.asarray(prob.col_kind)
-    normal = (kind == NORMAL) & real
-    knob = (kind == KNOB) & real
-    return _Ctx(coef=coef, coef_t=coef_t, cb=cb, g=g, om=om, o0=o0, wcol=jnp.where(real, w0 * o0, 0.0),
-                real=real, pair=normal | knob, normal=normal, knob=knob, owner=jnp.where(normal, b0, n),
-                group=jnp.asarray(prob.group), cost=cost)
-
-
-def _apply(coef, cb, x, n):
-    """sum over columns of coef[:, s] x -> (n, 6) (slot bricks ``n`` dropped)."""
-    out = jnp.zeros((n + 1, 6), x.dtype)
-    out = out.at[cb[:, 0]].add(coef[:, 0] * x[:, None])
-    out = out.at[cb[:, 1]].add(coef[:, 1] * x[:, None])
-    return out[:n]
-
-
-def _apply_t(coef, cb, y):
-    """transpose of :func:`_apply`: (n, 6) -> (m,)."""
-    yp = jnp.concatenate([y, jnp.zeros((1, 6), y.dtype)])
-    return (coef[:, 0] * yp[cb[:, 0]]).sum(-1) + (coef[:, 1] * yp[cb[:, 1]]).sum(-1)
-
-
-def _owner_sum(ctx: _Ctx, vals, n):
-    return jax.ops.segment_sum(vals, ctx.owner, num_segments=n + 1)[:n]
-
-
-def _ext(v):
-    return jnp.concatenate([v, jnp.zeros((1,), v.dtype)])
-
-
-def _phi(x, ctx: _Ctx):
-    S, D, _ = x
-    return jnp.where(ctx.pair, S - D, S)
-
-
-def _rho(ctx: _Ctx, phi):
-    return _apply(ctx.coef_t, ctx.cb, phi, ctx.g.shape[0]) + ctx.g
-
-
-# --------------------------------------------------------------------------
-# inequalities: kinds 0: D >= 0 (pairs), 1: S >= 0 (real columns),
-# 2: t_owner - o D >= 0 (NORMAL), 3: t >= 0 (bricks); then the residual
-# rows' pairs a: r >= 0, b: r - rho >= 0 (r = r+, r - rho = r-)
-
-
-def _masks(ctx: _Ctx):
-    n = ctx.g.shape[0]
-    ones = jnp.ones((n,), bool)
-    rows = jnp.ones((n, 6), bool)
-    return (ctx.pair, ctx.real, ctx.normal, ones, rows, rows)
-
-
-def _weights(ctx: _Ctx, params: Params):
-    """Barrier weight of each kind: the cost scale of its dual (alpha for the
-    force parts and drag maxima, the row's cost c for the residual pairs),
-    so that all complementarity products are of one size."""
-    a = params.alpha
-    return (a, a, a, a, ctx.cost, ctx.cost)
-
-
-def _slacks(x, ctx: _Ctx):
-    S, D, t = x
-    return D, S, _ext(t)[ctx.owner] - ctx.o0 * D, t
-
-
-def _msk(v, on, fill=0.0):
-    return jnp.where(on, v, fill)
-
-
-class _Pieces(NamedTuple):
-    """Newton system pieces: diagonal curvatures, couplings, the residual rows'
-    curvature ``ddpsi`` and the right-hand side."""
-
-    hS: jnp.ndarray  # (m,)
-    hD: jnp.ndarray  # (m,) h0 + o^2 h2 (pairs), 1 otherwise
-    h0: jnp.ndarray  # (m,) curvature of D >= 0 alone (pairs)
-    f: jnp.ndarray  # (m,) dR_D / dt_owner
-    g: jnp.ndarray  # (m,) dR_t / dD
-    h2o: jnp.ndarray  # (m,) o h2 (t's own curvature from column p)
-    h3: jnp.ndarray  # (n,)
-    ddpsi: jnp.ndarray  # (n, 6)
-
-
-def _compliance(ctx: _Ctx, opts: LossOptions):
-    """Per column: compliance * (1 - w_p), the curvature of the cost
-    ``eps (1 - w_p) / 2 (S^2 + D^2)`` (per unit of existence) of the contacts
-    of partly existing bricks; 0 for fully present ones (exact Eq. 9)."""
-    return jnp.where(ctx.real, opts.compliance * (1.0 - ctx.wcol), 0.0)
-
-
-def _system(x, ctx: _Ctx, dpsi, ddpsi, zeta, h, opts: LossOptions):
-    """Right-hand side R (divided by the weights) and the Jacobian pieces.
-
-    ``dpsi`` (n, 6): derivative of the residual rows' cost w.r.t. rho (their
-    price); ``ddpsi``: its curvature; ``zeta``/``h`` per kind: the barrier
-    multipliers and curvatures of kinds 0-3.
-
-        R_S = A^T dpsi + gamma[knob] - zeta1 + e S
-        R_D = -A^T dpsi + beta[normal] + gamma[knob] - zeta0 + o zeta2 + e D
-
-    with e the compliance of partly existing bricks' contacts.
-        R_t = alpha - zeta3 - sum_owner o zeta2
-    """
-    p = opts.params
-    S, D, t = x
-    n = ctx.g.shape[0]
-    z0, z1, z2, z3 = (_msk(v, on) for v, on in zip(zeta, _masks(ctx)[:4]))
-    h0, h1, h2, h3 = (_msk(v, on) for v, on in zip(h, _masks(ctx)[:4]))
-    o = ctx.o0
-    atp = _apply_t(ctx.coef, ctx.cb, dpsi)
-    kc = jnp.where(ctx.knob, opts.knob_cost, 0.0)
-    ec = _compliance(ctx, opts)
-    rS = jnp.where(ctx.real, atp + kc - z1 + ec * S, S)
-    rD = jnp.where(ctx.pair, -atp + jnp.where(ctx.normal, p.beta, 0.0) + kc - z0 + o * z2 + ec * D, D)
-    rt = p.alpha - z3 - _owner_sum(ctx, o * z2, n)
-    pieces = _Pieces(
-        hS=jnp.where(ctx.real, h1 + ec, 1.0),
-        hD=jnp.where(ctx.pair, h0 + o * o * h2 + ec, 1.0),
-        h0=h0 + ec,
-        f=-o * h2,
-        g=-o * o * h2,
-        h2o=o * h2,
-        h3=h3,
-        ddpsi=ddpsi,
-    )
-    return (rS, rD, rt), pieces
-
-
-# --------------------------------------------------------------------------
-# linear algebra
-
-
-class _Lin(NamedTuple):
-    """A factorised Newton matrix (or its transpose)."""
-
-    pc: _Pieces
-    lu: jnp.ndarray  # LU of the (7 n) system in (y, t)
-    piv: jnp.ndarray
-    transpose: bool
-
-
-def _fg(pc: _Pieces, transpose: bool):
-    return (pc.g, pc.f) if transpose else (pc.f, pc.g)
-
-
-def _factor(ctx: _Ctx, pc: _Pieces, transpose: bool = False) -> _Lin:
-    """Factor the Newton matrix (or its transpose).
-
-    Unknowns: per column (S_p, D_p) (diagonal blocks), per brick t_b, and
-    y = diag(ddpsi) A~ dphi (the change of the residual rows' prices).
-    Eliminating S and D per column leaves one dense LU of the (6 n + n)
-    system in (y, t):
-
-        [ diag(1/ddpsi) + A~ diag(theta) A^T    -A~ diag(f / hD) ] [y]
-        [ diag(g / hD) A                          diag(ktt)       ] [t]
-
-    with theta = 1/hS + [pair]/hD and ktt = tt - sum g f / hD written without
-    cancellation. The transpose swaps f and g and A and A~.
-    """
-    f, g = _fg(pc, transpose)
-    n = ctx.g.shape[0]
-    theta = 1.0 / pc.hS + jnp.where(ctx.pair, 1.0 / pc.hD, 0.0)
-    theta = jnp.where(ctx.real, theta, 0.0)
-    ktt = pc.h3 + _owner_sum(ctx, jnp.where(ctx.normal, pc.h2o * pc.h0 / pc.hD, 0.0), n)
-    m = pc.hS.shape[0]
-    left, right = (ctx.coef, ctx.coef_t) if transpose else (ctx.coef_t, ctx.coef)
-    idx = (ctx.cb[:, :, None] * 6 + jnp.arange(6)[None, None, :]).reshape(m, 12)
-    al = left.reshape(m, 12)
-    ar = right.reshape(m, 12)
-    N = 6 * (n + 1)
-    K = jnp.zeros((N, N), theta.dtype)
-    K = K.at[idx[:, :, None], idx[:, None, :]].add(al[:, :, None] * (theta[:, None, None] * ar[:, None, :]))
-    Kyt = jnp.zeros((N, n + 1), theta.dtype).at[idx, ctx.owner[:, None]].add(al * (f / pc.hD)[:, None])
-    Kty = jnp.zeros((n + 1, N), theta.dtype).at[ctx.owner[:, None], idx].add(ar * (g / pc.hD)[:, None])
-    top = jnp.concatenate([K[: 6 * n, : 6 * n] + jnp.diag(1.0 / pc.ddpsi.reshape(-1)), -Kyt[: 6 * n, :n]], axis=1)
-    bot = jnp.concatenate([Kty[:n, : 6 * n], jnp.diag(ktt)], axis=1)
-    lu, piv = jax.scipy.linalg.lu_factor(jnp.concatenate([top, bot], axis=0))
-    return _Lin(pc=pc, lu=lu, piv=piv, transpose=transpose)
-
-
-def _solve(ctx: _Ctx, lin: _Lin, r):
-    """Solve J d = r (J^T d = r for a transposed factorisation), r = (r_S, r_D, r_t).
-
-    Returns (d, y, d2): d = (dS, dD, dt), y the residual-price part, d2 =
-    dt_owner - o dD (the change of the t - o D slack) computed without
-    cancellation."""
-    pc = lin.pc
-    f, g = _fg(pc, lin.transpose)
-    rS, rD, rt = r
-    n = rt.shape[0]
-    left, right = (ctx.coef, ctx.coef_t) if lin.transpose else (ctx.coef_t, ctx.coef)
-    u = jnp.where(ctx.real, rS / pc.hS, 0.0) - jnp.where(ctx.pair, rD / pc.hD, 0.0)
-    ry = _apply(left, ctx.cb, u, n).reshape(-1)
-    rtt = rt - _owner_sum(ctx, jnp.where(ctx.pair, g * rD / pc.hD, 0.0), n)
-    sol = jax.scipy.linalg.lu_solve((lin.lu, lin.piv), jnp.concatenate([ry, rtt]))
-    y, dt = sol[: 6 * n].reshape(n, 6), sol[6 * n:]
-    aty = _apply_t(right, ctx.cb, y)
-    dte = _ext(dt)[ctx.owner]
-    dS = jnp.where(ctx.real, (rS - aty) / pc.hS, rS)
-    qD = rD + aty
-    dD = jnp.where(ctx.pair, (qD - f * dte) / pc.hD, rD)
-    d2 = dte * pc.h0 / pc.hD - ctx.o0 * qD / pc.hD  # = dt_owner - o dD for NORMAL columns
-    return (dS, dD, dt), y, d2
-
-
-# --------------------------------------------------------------------------
-# the interior-point method
-
-
-def _ratio(v, dv, on):
-    """Largest step keeping v + step dv > 0 over ``on`` (inf if none)."""
-    lim = jnp.where(dv < 0, -v / jnp.where(dv < 0, dv, -1.0), jnp.inf)
-    return jnp.where(on, lim, jnp.inf).min()
-
-
-def _axpy(t, d, x):
-    return jax.tree_util.tree_map(lambda a, b: a + t * b, x, d)
-
-
-def _start(ctx: _Ctx, wts):
-    m, n = ctx.real.shape[0], ctx.g.shape[0]
-    dtype = ctx.g.dtype
-    S = jnp.where(ctx.real, 1.0, 0.0).astype(dtype)
-    D = jnp.where(ctx.pair, 1.0, 0.0).astype(dtype)
-    x = (S, D, jnp.full((n,), 2.0, dtype))
-    rho = _rho(ctx, _phi(x, ctx))
-    r = 1.0 + jnp.maximum(rho, 0.0)
-    s = tuple(jnp.ones_like(v) for v in _slacks(x, ctx)) + (r, r - rho)
-    z = tuple(jnp.ones_like(v) * w for v, w in zip(s, wts))
-    return x, r, s, z
-
-
-def _ipm(ctx: _Ctx, opts: LossOptions):
-    """Infeasible primal-dual interior point (Mehrotra predictor-corrector)
-    with slack variables s and duals z per inequality (only s, z > 0 is
-    kept: fraction 0.99 to the boundary, no line search).
-
-    The barrier of inequality kind k is weighted by w_k (:func:`_weights`);
-    each iteration targets ``tau = max(mu, sigma mean(s z / w))``; once
-    ``tau = mu`` the steps are pure centring steps towards the point of the
-    central path at ``mu``, which is returned (with the residual rows' price
-    and curvature there, for the backward pass, and the optimality residual)."""
-    dtype = ctx.g.dtype
-    n = ctx.g.shape[0]
-    ons = _masks(ctx)
-    wts = _weights(ctx, opts.params)
-    n_pairs = sum(jnp.sum(o) for o in ons)
-    cost = ctx.cost
-
-    def mean_gap(s, z):
-        return sum(_msk(sv * zv / w, o).sum() for sv, zv, o, w in zip(s, z, ons, wts)) / n_pairs
-
-    def pieces(x, r, s, z, target):
-        rho = _rho(ctx, _phi(x, ctx))
-        shat = tuple(_slacks(x, ctx)) + (r, r - rho)
-        rp = tuple(_msk(sv - sh, o) for sv, sh, o in zip(s, shat, ons))  # primal residuals
-        h = tuple(zv / sv for zv, sv in zip(z, s))
-        zeta = tuple(tg / sv + hv * rv for sv, hv, rv, tg in zip(s, h, rp, target))
-        # eliminate r: R_r = 2c - zeta_a - zeta_b, J_rr = h_a + h_b, J_r,rho = -h_b
-        R_r = 2.0 * cost - zeta[4] - zeta[5]
-        jrr = h[4] + h[5]
-        dpsi = -cost + zeta[5] + h[5] * R_r / jrr
-        ddpsi = h[4] * h[5] / jrr
-        rr, pc = _system(x, ctx, dpsi, ddpsi, zeta[:4], h[:4], opts)
-        return rp, h, R_r, dpsi, rr, pc
-
-    def direction(x, r, s, z, target, lin):
-        rp, h, _, dpsi, rr, _ = pieces(x, r, s, z, target)
-        (dS, dD, dt), y, d2 = _solve(ctx, lin, rr)
-        dx = (-dS, -dD, -dt)
-        # the residual rows' duals from y (the backward-stable part of the
-        # solve): their dual equations hold to rounding, and the rounding
-        # goes to the primal equation r - rho = s_b (absolute, tiny)
-        dzb = (dpsi - y) + cost - z[5]
-        dza = 2.0 * cost - z[4] - z[5] - dzb
-        drho = -_apply(ctx.coef_t, ctx.cb, _phi((dS, dD, dt), ctx), n)
-        comp = lambda k, dzk: (target[k] - s[k] * z[k] - s[k] * dzk) / z[k]  # noqa: E731
-        zcomp = lambda k, dsk: (target[k] - s[k] * z[k] - z[k] * dsk) / s[k]  # noqa: E731
-        # each pair's step goes through its active side(s) (h = z/s > 1): a
-        # slack step from complementarity divides by z, exact only where z is
-        # not tiny; the inactive side follows from the primal equations
-        act_a, act_b = h[4] > 1.0, h[5] > 1.0
-        dsa1, dsb1 = comp(4, dza), comp(5, dzb)
-        dr_a = dsa1 + rp[4]  # through a
-        dr_b = dsb1 + drho + rp[5]  # through b
-        use_b = act_b & ~act_a
-        dr = jnp.where(use_b, dr_b, dr_a)
-        dsa = jnp.where(use_b, dr - rp[4], dsa1)
-        dsb = jnp.where(act_b, dsb1, dr - drho - rp[5])
-        dza = jnp.where(use_b, zcomp(4, dsa), dza)
-        dzb = jnp.where(act_b, dzb, zcomp(5, dsb))
-        dshat = (dx[1], dx[0], -d2, dx[2])
-        ds = [_msk(dv - rv, o) for dv, rv, o in zip(dshat, rp[:4], ons[:4])]
-        dz = [_msk(zcomp(k, ds[k]), ons[k]) for k in range(4)]
-        ds = tuple(_msk(v, on) for v, on in zip(ds, ons[:4])) + (dsa, dsb)
-        dz = tuple(_msk(v, on) for v, on in zip(dz, ons[:4])) + (dza, dzb)
-        step = jnp.asarray(1.0, dtype)
-        for sv, dsv, zv, dzv, o in zip(s, ds, z, dz, ons):
-            step = jnp.minimum(step, jnp.minimum(_ratio(sv, dsv, o), _ratio(zv, dzv, o)))
-        return dx, dr, ds, dz, step
-
-    def primal(state):
-        x, r, s, _ = state
-        shat = tuple(_slacks(x, ctx)) + (r, r - _rho(ctx, _phi(x, ctx)))
-        return jnp.max(jnp.stack([jnp.abs(_msk(sv - sh, o)).max() for sv, sh, o in zip(s, shat, ons)]))
-
-    def centrality(s, z, tau):
-        return jnp.max(jnp.stack([jnp.abs(_msk(sv * zv / (w * tau) - 1.0, o)).max()
-                                  for sv, zv, o, w in zip(s, z, ons, wts)]))
-
-    def body(carry):
-        state, done, it = carry
-        new = step_once(state)
-        # stop once centred on the final barrier parameter: further centring
-        # steps only stir rounding errors around
-        x, r, s, z = new
-        mu_now = mean_gap(s, z)
-        ok = (mu_now <= 1.5 * opts.mu) & (centrality(s, z, opts.mu) <= opts.centred)
-        # guard: near the end a step that loses primal feasibility (rounding
-        # in a near-singular system) is refused and the iterate kept
-        bad = (primal(new) > jnp.maximum(1e-6, 10.0 * primal(state))) & (mean_gap(*state[2:]) < 1e-3)
-        out = jax.tree_util.tree_map(lambda a, b: jnp.where(done | bad, a, b), state, new)
-        return out, done | ok | bad, it + 1
-
-    def step_once(state):
-        x, r, s, z = state
-        mu = mean_gap(s, z)
-        # one factorisation per iteration (the matrix does not depend on the target)
-        _, _, _, _, _, pc = pieces(x, r, s, z, wts)
-        lin = _factor(ctx, pc)
-        # predictor (affine scaling, target 0), then corrector (centring
-        # towards tau plus the second-order term; pure centring once the target
-        # is the final mu): one traced direction in a scan of length 2
-        def phase(target, _):
-            out = direction(x, r, s, z, target, lin)
-            _, _, ds_a, dz_a, st_a = out
-            st_a = jnp.minimum(st_a, 1.0)
-            mu_a = mean_gap(_axpy(st_a, ds_a, s), _axpy(st_a, dz_a, z))
-            sigma = jnp.clip((mu_a / mu) ** 3, 0.0, 1.0)
-            tau = jnp.maximum(opts.mu, sigma * mu)
-            final = tau <= opts.mu
-            nxt = tuple(tau * w - jnp.where(final, 0.0, _msk(dsv * dzv, o))
-                        for w, dsv, dzv, o in zip(wts, ds_a, dz_a, ons))
-            return nxt, out
-
-        zero = tuple(jnp.zeros_like(v) for v in s)
-        _, outs = jax.lax.scan(phase, zero, None, length=2)
-        dx, dr, ds, dz, step = jax.tree_util.tree_map(lambda a: a[1], outs)
-        step = jnp.minimum(1.0, 0.99 * step)
-        # safeguard: a step that multiplies the complementarity gap (rounding
-        # in a near-singular system, e.g. contacts between absent bricks) is
-        # shortened, by 4x at a time, until the gap at most doubles
-        def grows(st):
-            return mean_gap(_axpy(st, ds, s), _axpy(st, dz, z)) > 2.0 * jnp.maximum(mu, opts.mu)
-        for _ in range(6):
-            step = jnp.where(grows(step), 0.25 * step, step)
-        return _axpy(step, dx, x), r + step * dr, _axpy(step, ds, s), _axpy(step, dz, z)
-
-    (x, r, s, z), _, _ = jax.lax.while_loop(lambda c: (~c[1]) & (c[2] < opts.iters), body,
-                                            (_start(ctx, wts), jnp.asarray(False), jnp.asarray(0)))
-    # optimality residuals with the actual duals: stationarity (z in place of
-    # the barrier multipliers), primal feasibility, centrality; and the
-    # residual rows' price and curvature for the backward pass
-    rp, h, _, _, _, pc = pieces(x, r, s, z, tuple(sv * zv for sv, zv in zip(s, z)))
-    stat, _ = _system(x, ctx, -cost + z[5], pc.ddpsi, z[:4], h[:4], opts)
-    stat = tuple(jnp.where(on, v, 0.0) for v, on in zip(stat, (ctx.real, ctx.pair, jnp.ones((n,), bool))))
-    res = jnp.max(jnp.stack([jnp.abs(v).max() for v in stat] + [jnp.abs(v).max() for v in rp]
-                            + [jnp.abs(2.0 * cost - z[4] - z[5]).max()]))
-    res = jnp.where(centrality(s, z, opts.mu) <= 0.5, res, jnp.maximum(res, 1.0))
-    return x, (-cost + z[5], pc.ddpsi, res)
-
-
-# --------------------------------------------------------------------------
-# implicit differentiation
-
-
-@functools.partial(jax.custom_vjp, nondiff_argnums=(3,))
-def _x_star(weights, loads, prob, opts):
-    """(x, aux): the solution x = (S, D, t) and, not differentiable, aux =
-    (dpsi, ddpsi, res) (residual rows' price and curvature, optimality residual)."""
-    return _ipm(_context(weights, loads, prob, opts.params), opts)
-
-
-def _x_fwd(weights, loads, prob, opts):
-    out = _x_star(weights, loads, prob, opts)
-    return out, (out, weights, loads, prob)
-
-
-def _barrier_system(x, ctx: _Ctx, ctx0: _Ctx, dpsi, ddpsi, opts: LossOptions):
-    """Optimality conditions R of the barrier problem at ``opts.mu`` (all
-    barrier multipliers ``mu w / slack``), with the residual rows' price
-    linearised around the solution: exact value and first derivatives at the
-    solution (where ``ctx == ctx0``; ``ctx0=None``: the price frozen). (Their
-    closed form, sqrt-type in rho, is too sensitive to rounding at small mu
-    to evaluate directly.)"""
-    mu = opts.mu
-    wts = _weights(ctx, opts.params)[:4]
-    sl = [_msk(v, on, 1.0) for v, on in zip(_slacks(x, ctx), _masks(ctx)[:4])]
-    dp = dpsi if ctx0 is None else dpsi + ddpsi * (_rho(ctx, _phi(x, ctx)) - _rho(ctx0, _phi(x, ctx0)))
-    return _system(x, ctx, dp, ddpsi, [mu * w / v for v, w in zip(sl, wts)],
-                   [mu * w / (v * v) for v, w in zip(sl, wts)], opts)
-
-
-def _x_bwd(opts, res, ct):
-    """R(x*(theta), theta) = 0, so theta_bar = -(dR/dtheta)^T J^-T x_bar.
-
-    R depends on theta through the residual rows (rho) and through the
-    other-brick weights in the drag-maximum constraints. The rho part of
-    lam^T dR/dtheta is ``y^T drho/dtheta`` with ``y = ddpsi A lam_phi`` taken
-    from the backward-stable part of the transposed solve (forming it from
-    lam_phi would amplify rounding by the huge curvatures of a near-LP)."""
-    (x, (dpsi, ddpsi, _)), weights, loads, prob = res
-    ctx0 = _context(weights, loads, prob, opts.params)
-    _, pc = _barrier_system(x, ctx0, ctx0, dpsi, ddpsi, opts)
-    lam, y, _ = _solve(ctx0, _factor(ctx0, pc, transpose=True), ct[0])
-
-    def rfun(w, l):  # R with the residual rows' price frozen
-        return _barrier_system(x, _context(w, l, prob, opts.params), None, dpsi, ddpsi, opts)[0]
-
-    def rhofun(w, l):
-        ctx = _context(w, l, prob, opts.params)
-        return _rho(ctx, _phi(x, ctx))
-
-    _, vjp = jax.vjp(rfun, weights, loads)
-    gw, gl = vjp(jax.tree_util.tree_map(jnp.negative, lam))
-    _, vjp_rho = jax.vjp(rhofun, weights, loads)
-    gw2, gl2 = vjp_rho(-y)
-    return gw + gw2, gl + gl2, None
-
-
-_x_star.defvjp(_x_fwd, _x_bwd)
-
-
-# --------------------------------------------------------------------------
-# public API
-
-
-def _prep(weights, loads, prob):
+def _terms(weights, loads, prob, opts):
     n = prob.mass.shape[0]
     weights = jnp.asarray(weights, jnp.float64)
     loads = jnp.zeros((n,), jnp.float64) if loads is None else jnp.asarray(loads, jnp.float64)
-    return weights, loads
-
-
-def _terms(weights, loads, prob, opts):
-    weights, loads = _prep(weights, loads, prob)
-    x, aux = _x_star(weights, loads, prob, opts)
-    ctx = _context(weights, loads, prob, opts.params)
+    x, aux = central_path(weights, loads, prob, opts)
+    ctx = soft_context(weights, loads, prob, opts.params)
     return ctx, x, aux
 
 
+@x64_differentiable("weights", "loads")
 def solve_soft(weights, loads, prob: SoftProblem, opts: LossOptions = LossOptions()) -> SoftSolution:
     """Solve the smooth Eq. 9 problem of ``prob`` at ``weights`` (n,) and
     extra ``loads`` (n,) kg (None: no loads). Differentiable in weights and
     loads (implicit differentiation)."""
     ctx, x, aux = _terms(weights, loads, prob, opts)
-    phi = _phi(x, ctx)
+    phi = column_force(x, ctx)
     res = jax.lax.stop_gradient(aux[2])
     return SoftSolution(phi=phi, max_drag=x[2] * opts.params.T, force=phi * ctx.wcol * opts.params.T,
                         converged=res <= opts.tol, opt_res=res)
 
 
-def _brick_loss(ctx: _Ctx, x, rho, tau, opts: LossOptions):
+def _brick_loss(ctx: SoftContext, x, rho, tau, opts: LossOptions):
     s = opts.residual_smoothing
     resid = (ctx.cost * (jnp.sqrt(rho * rho + s * s) - s)).sum(axis=1)
     hinge = tau * jax.nn.softplus((x[2] - 1.0) / tau)
     return ctx.om * (hinge + resid)
 
 
-def _fail_prob(ctx: _Ctx, x, rho, tau, opts: LossOptions):
+def _residual_bad(rho, opts: LossOptions):
+    """Eq. 10's equilibrium test on the scaled residual ``rho`` (forces / T,
+    torques / (T stud)), through :func:`stablelego_jax.score.residual_bad`."""
+    p = opts.params
+    unit = jnp.asarray([p.T, p.T, p.T, p.T * p.stud, p.T * p.stud, p.T * p.stud], rho.dtype)
+    return residual_bad(rho * unit, p)
+
+
+def _fail_prob(ctx: SoftContext, x, rho, tau, opts: LossOptions):
     p = jax.nn.sigmoid((x[2] - 1.0) / tau)
-    return jnp.where(ctx.om > 0, jnp.where(_residual_bad(rho, opts.params), 1.0, p), 0.0)
+    return jnp.where(ctx.om > 0, jnp.where(_residual_bad(rho, opts), 1.0, p), 0.0)
 
 
-def _scores(ctx: _Ctx, phi, rho, opts: LossOptions):
+def _scores(ctx: SoftContext, phi, rho, opts: LossOptions):
     d = jnp.where(ctx.normal, jnp.maximum(-phi, 0.0) * ctx.o0, 0.0)
-    dm = _ext(d)[ctx.group].max(axis=1)
-    bad = _residual_bad(rho, opts.params)
+    dm = largest_drag(d, ctx.group) * opts.params.T
+    bad = _residual_bad(rho, opts)
     present = ctx.om > 0
-    score = jnp.where(present, jnp.where(bad | (dm >= 1.0), 1.0, dm), 0.0)
-    return score, dm * opts.params.T, bad & present
+    score = jnp.where(present, verdict(dm, bad, opts.params), 0.0)
+    return score, dm, bad & present
 
 
+def _brick_losses(weights, loads, prob, temperature, opts):
+    tau = opts.temperature if temperature is None else temperature
+    ctx, x, _ = _terms(weights, loads, prob, opts)
+    return _brick_loss(ctx, x, brick_residual(ctx, column_force(x, ctx)), tau, opts)
+
+
+@x64_differentiable("weights", "loads")
 def brick_loss(weights, loads, prob: SoftProblem, temperature: float | None = None,
                opts: LossOptions = LossOptions()):
     """Per-brick loss (n,): ``w_b [tau softplus((t_b - 1)/tau) + E_b]`` with t_b
     the brick's largest drag and E_b its equilibrium residual, both in units
     of T (see the module docstring). ``temperature`` overrides
     ``opts.temperature``. Padding and absent bricks give 0."""
-    tau = opts.temperature if temperature is None else temperature
-    ctx, x, _ = _terms(weights, loads, prob, opts)
-    return _brick_loss(ctx, x, _rho(ctx, _phi(x, ctx)), tau, opts)
+    return _brick_losses(weights, loads, prob, temperature, opts)
 
 
+@x64_differentiable("weights", "loads")
 def stability_loss(weights, loads, prob: SoftProblem, temperature: float | None = None,
                    opts: LossOptions = LossOptions()):
     """Scalar stability loss: the sum of :func:`brick_loss`."""
-    return brick_loss(weights, loads, prob, temperature, opts).sum()
+    return _brick_losses(weights, loads, prob, temperature, opts).sum()
 
 
-def _residual_bad(rho, params: Params):
-    # rho is scaled: forces / T, torques / (T stud); Eq. 10 tolerance eq_tol N and eq_tol * stud N m
-    tol = params.eq_tol / params.T
-    return (jnp.abs(rho[:, :3]).max(axis=1) > tol) | (jnp.abs(rho[:, 3:]).max(axis=1) > tol)
-
-
+@x64_differentiable("weights", "loads")
 def fail_prob(weights, loads, prob: SoftProblem, temperature: float | None = None,
               opts: LossOptions = LossOptions()):
     """Smooth Eq. 10 failure indicator per brick: ``sigmoid((t_b - 1)/tau)``
@@ -733,19 +229,21 @@ def fail_prob(weights, loads, prob: SoftProblem, temperature: float | None = Non
     ``tau -> 0``. Absent and padding bricks give 0."""
     tau = opts.temperature if temperature is None else temperature
     ctx, x, _ = _terms(weights, loads, prob, opts)
-    return _fail_prob(ctx, x, _rho(ctx, _phi(x, ctx)), tau, opts)
+    return _fail_prob(ctx, x, brick_residual(ctx, column_force(x, ctx)), tau, opts)
 
 
+@x64_differentiable("weights", "loads")
 def soft_scores(weights, loads, prob: SoftProblem, opts: LossOptions = LossOptions()):
-    """Eq. 10 applied to the smooth solution (per unit of existence).
+    """Eq. 10 (:func:`stablelego_jax.score.verdict`) applied to the smooth
+    solution (per unit of existence).
 
     Returns (scores (n,), max_drag (n,) N, residual_bad (n,) bool); scores
     are 1 for bricks out of equilibrium or with drag >= T, else drag / T,
     and 0 for padding and absent (w = 0) bricks.
     """
     ctx, x, _ = _terms(weights, loads, prob, opts)
-    phi = _phi(x, ctx)
-    return _scores(ctx, phi, _rho(ctx, phi), opts)
+    phi = column_force(x, ctx)
+    return _scores(ctx, phi, brick_residual(ctx, phi), opts)
 
 
 class SoftReport(NamedTuple):
@@ -759,13 +257,14 @@ class SoftReport(NamedTuple):
     converged: jnp.ndarray  # () bool
 
 
+@x64_differentiable("weights", "loads")
 def soft_report(weights, loads, prob: SoftProblem, temperature=None, opts: LossOptions = LossOptions()) -> SoftReport:
     """:func:`brick_loss`, :func:`fail_prob` and :func:`soft_scores` from one
     solve; ``temperature`` may be a traced value (it does not enter the solve)."""
     tau = opts.temperature if temperature is None else temperature
     ctx, x, aux = _terms(weights, loads, prob, opts)
-    phi = _phi(x, ctx)
-    rho = _rho(ctx, phi)
+    phi = column_force(x, ctx)
+    rho = brick_residual(ctx, phi)
     score, max_drag, bad = _scores(ctx, phi, rho, opts)
     return SoftReport(brick_loss=_brick_loss(ctx, x, rho, tau, opts), fail_prob=_fail_prob(ctx, x, rho, tau, opts),
                       scores=score, max_drag=max_drag, residual_bad=bad,

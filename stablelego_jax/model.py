@@ -25,7 +25,7 @@ import numpy as np
 
 from .layout import Layout, cells_of
 
-__all__ = ["Params", "ForceModel", "compile_layout", "NORMAL", "KNOB", "SIDE", "bucket_size"]
+__all__ = ["Params", "ForceModel", "compile_layout", "normal_groups", "NORMAL", "KNOB", "SIDE"]
 
 NORMAL, KNOB, SIDE = 0, 1, 2
 
@@ -133,14 +133,6 @@ class ForceModel:
             self, col_brick=cb.astype(np.int32), col_coef=coef, col_kind=kind, col_mask=mask,
             group=grp, gravity=grav, brick_mask=bm, layer=lay,
         )
-
-
-def bucket_size(k: int, base: int = 8, growth: float = 1.25) -> int:
-    """Smallest bucket >= k from a geometric ladder (shapes reused across layouts)."""
-    b = base
-    while b < k:
-        b = int(np.ceil(b * growth / 8.0) * 8)
-    return b
 
 
 def normal_groups(col_brick: np.ndarray, col_kind: np.ndarray, n: int) -> np.ndarray:

@@ -27,6 +27,7 @@ from matplotlib.colors import LinearSegmentedColormap, Normalize, to_rgba
 from matplotlib.cm import ScalarMappable
 from matplotlib.figure import Figure
 
+from .files import atomic_write
 from .layout import Layout
 
 __all__ = [
@@ -336,9 +337,6 @@ def _colorbar(fig, axes, shrink=0.8, location="right", aspect=25):
 
 # --------------------------------------------------------------------------
 # writing
-
-
-from .io import atomic_write  # noqa: E402  (the one atomic writer)
 
 
 def _save(fig: Figure, path: str, dpi: int) -> None:

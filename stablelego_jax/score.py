@@ -1,27 +1,29 @@
 """Per-brick scores (paper Eq. 10) from a force distribution.
 
-Works on numpy or JAX arrays of one (unbatched) compiled model; ``vmap`` it
-for batches.
+The one implementation of each formula every solver, the loss and repair
+use: :func:`largest_drag` (the largest drag on each brick's own bottom
+contacts), :func:`residual_bad` (out of equilibrium beyond the tolerance)
+and :func:`verdict` (Eq. 10). Works on numpy arrays (no per-shape jit
+compiles) or JAX arrays and tracers (so it jits and vmaps); one
+(unbatched) model at a time, ``vmap`` it for batches.
 """
 from __future__ import annotations
 
-from typing import Mapping, Sequence
-
-import jax
-import jax.numpy as jnp
 import numpy as np
 
-from .layout import Layout, cells_of, layout_voxels
-from .model import NORMAL
+from .model import NORMAL, Params
 
-
-__all__ = ["residual", "brick_drag", "brick_scores", "score_grid"]
+__all__ = ["residual", "largest_drag", "brick_drag", "residual_bad", "verdict", "brick_scores"]
 
 
 def _xp(*arrays):
-    """numpy for host arrays (no per-shape jit compiles), jax.numpy otherwise
-    (jax arrays and tracers, so the functions still jit and vmap)."""
-    return jnp if any(isinstance(a, jax.Array) for a in arrays) else np
+    """jax.numpy for JAX arrays and tracers, numpy otherwise (host arrays
+    need no JAX, not even its import)."""
+    if any(type(a).__module__.startswith(("jax", "jaxlib")) for a in arrays):
+        import jax.numpy as jnp
+
+        return jnp
+    return np
 
 
 def residual(model, f):
@@ -34,50 +36,55 @@ def residual(model, f):
         np.add.at(out, cb[:, 0], coef[:, 0, :] * f[:, None])
         np.add.at(out, cb[:, 1], coef[:, 1, :] * f[:, None])
         return out[:n_pad] + model.gravity
-    out = jnp.zeros((n_pad + 1, 6), f.dtype)
+    out = xp.zeros((n_pad + 1, 6), f.dtype)
     out = out.at[cb[:, 0]].add(coef[:, 0, :] * f[:, None])
     out = out.at[cb[:, 1]].add(coef[:, 1, :] * f[:, None])
     return out[:n_pad] + model.gravity
+
+
+def largest_drag(drag, group):
+    """The largest of each brick's bottom-contact drags.
+
+    drag: (m,) drag of each column (>= 0; 0 where a column has none);
+    group: (n, P) the NORMAL columns on each brick's bottom (``m`` = empty
+    slot). Returns (n,), 0 for a brick with no bottom contact.
+    """
+    xp = _xp(drag, group)
+    d = xp.concatenate([drag, xp.zeros((1,), drag.dtype)])
+    return d[group].max(axis=1)
 
 
 def brick_drag(model, f):
     """Largest drag ``D = max(-n, 0)`` on each brick's bottom contacts: (n_pad,) N."""
     xp = _xp(f)
     d = xp.where(model.col_kind == NORMAL, xp.maximum(-f, 0.0), 0.0)
-    d = xp.concatenate([d, xp.zeros((1,), d.dtype)])
-    return d[model.group].max(axis=1)
+    return largest_drag(d, model.group)
+
+
+def residual_bad(r, params: Params):
+    """(n,) bool: the brick is out of equilibrium, its residual ``r`` ((n, 6),
+    N and N m) beyond ``eq_tol`` (forces) or ``eq_tol * stud`` (torques)."""
+    xp = _xp(r)
+    r = xp.abs(r)
+    return (r[:, :3].max(axis=1) > params.eq_tol) | (r[:, 3:].max(axis=1) > params.eq_tol * params.stud)
+
+
+def verdict(dmax, bad, params: Params):
+    """Paper Eq. 10: the score of each brick from its largest drag ``dmax``
+    (N) and whether it is out of equilibrium (``bad``): 1 where ``bad`` or
+    the drag reaches T (within ``drag_rtol * T``), else drag / T."""
+    xp = _xp(dmax)
+    return xp.where(bad | (dmax >= params.T * (1.0 - params.drag_rtol)), 1.0, dmax / params.T)
 
 
 def brick_scores(model, f, params=None):
     """Eq. 10 score per brick (n_pad,), plus (residual_bad, max_drag).
 
-    Score is 1 where the residual exceeds ``eq_tol`` (forces, N) or
-    ``eq_tol * stud`` (torques, N m), or the largest drag reaches T (within
-    ``drag_rtol * T``); else
-    largest drag / T. Padding bricks score 0.
+    See :func:`verdict`; padding bricks score 0.
     """
     p = params or model.params
     xp = _xp(f)
-    r = xp.abs(residual(model, f))
-    bad = (r[:, :3].max(axis=1) > p.eq_tol) | (r[:, 3:].max(axis=1) > p.eq_tol * p.stud)
+    bad = residual_bad(residual(model, f), p)
     dmax = brick_drag(model, f)
-    s = xp.where(bad | (dmax >= p.T * (1.0 - p.drag_rtol)), 1.0, dmax / p.T)
+    s = verdict(dmax, bad, p)
     return xp.where(model.brick_mask, s, 0.0), bad & model.brick_mask, dmax
-
-
-def score_grid(layout: Layout, scores, shape: Sequence[int] | None = None) -> np.ndarray:
-    """(X, Y, Z) float64 grid: each brick's cells hold its score, empty cells 0.
-
-    ``scores``: {key: score} or a sequence aligned with layout.keys.
-    """
-    if isinstance(scores, Mapping):
-        s = np.array([float(scores[k]) for k in layout.keys])
-    else:
-        s = np.asarray(scores, np.float64).reshape(-1)
-        if s.shape != (layout.n,):
-            raise ValueError(f"scores must hold one value per brick ({layout.n}), got {s.shape}")
-    shape = layout_voxels(layout, shape).shape
-    grid = np.zeros(shape, np.float64)
-    cells, owner = cells_of(layout.pos, layout.size)
-    grid[cells[:, 0], cells[:, 1], cells[:, 2]] = s[owner]
-    return grid

@@ -27,7 +27,7 @@ A candidate may ``replace`` a base brick (``--allow-remove`` repairs): its
 contacts are then computed without that brick.
 
 Shapes: ``n`` bricks (base first, then candidate bricks in order), ``m``
-force columns (the base layout's columns as :func:`model.compile_layout`
+force columns (the base layout's columns as :func:`~stablelego_jax.model.compile_layout`
 makes them, then each candidate's), ``P`` contact points per brick bottom.
 """
 from __future__ import annotations
@@ -37,8 +37,8 @@ from typing import NamedTuple, Sequence
 
 import numpy as np
 
-from .layout import TABLE_I_MASS_KG, Layout, LayoutError, make_layout
-from .model import KNOB, NORMAL, ForceModel, Params, bucket_size, compile_layout, normal_groups
+from .layout import Layout, LayoutError, make_layout, table_i_bricks
+from .model import ForceModel, Params, compile_layout, normal_groups
 
 __all__ = [
     "Candidate",
@@ -46,8 +46,6 @@ __all__ = [
     "SoftLayout",
     "compile_soft",
     "soft_problem",
-    "pad_soft",
-    "stack_soft",
     "candidate_brick",
     "compile_placements",
     "placement_pairs",
@@ -56,7 +54,7 @@ __all__ = [
 
 class SoftProblem(NamedTuple):
     """Array-only pytree of a soft layout (numpy or JAX arrays; ``vmap``-able
-    after :func:`stack_soft`).
+    after :func:`~stablelego_jax.solvers.problem.stack_soft`).
 
     col_brick: (m, 2) int32 bricks of each column (slot 0 upper / + side,
       slot 1 lower / - side); ``n`` = the baseplate (or nothing).
@@ -120,22 +118,10 @@ class Candidate:
 def candidate_brick(bricks: Sequence[tuple], kind: str = "support", replaces: int = -1, note: str = "") -> Candidate:
     """A candidate of real (Table I) bricks given as ``(x, y, z, sx, sy)``
     tuples; masses, library ids and ori from the StableLego library."""
-    from .io import _library_id_for
-
-    pos, size, mass, bids, oris = [], [], [], [], []
-    for x, y, z, sx, sy in bricks:
-        key = (min(sx, sy), max(sx, sy))
-        if key not in TABLE_I_MASS_KG:
-            raise ValueError(f"{sx}x{sy} is not a Table I brick")
-        bid, ori = _library_id_for(int(sx), int(sy))
-        pos.append((int(x), int(y), int(z)))
-        size.append((int(sx), int(sy)))
-        mass.append(TABLE_I_MASS_KG[key])
-        bids.append(bid)
-        oris.append(ori)
+    arr = np.asarray(bricks, np.int64).reshape(-1, 5)
+    mass, bids, oris = table_i_bricks(arr[:, 3:])
     return Candidate(
-        pos=np.asarray(pos, np.int64).reshape(-1, 3), size=np.asarray(size, np.int64).reshape(-1, 2),
-        mass=np.asarray(mass, np.float64), brick_id=tuple(bids), ori=np.asarray(oris, np.int64),
+        pos=arr[:, :3], size=arr[:, 3:], mass=mass, brick_id=bids, ori=oris,
         kind=kind, replaces=int(replaces), note=note,
     )
 
@@ -338,7 +324,7 @@ def compile_placements(pos, size, mass, params: Params = Params()) -> SoftProble
     every pair in adjacent layers with overlapping footprints gets the knob
     connection (NORMAL + KNOB columns), every non-overlapping pair sharing a
     face in one layer the side presses, and each layer-0 placement its
-    baseplate connection, each exactly as :func:`model.compile_layout`
+    baseplate connection, each exactly as :func:`~stablelego_jax.model.compile_layout`
     makes them for the layout of just those bricks (it is called once on a
     layout holding every pair, translated into its own slot: wrench
     coefficients are translation invariant). So a non-overlapping subset at
@@ -388,39 +374,3 @@ def compile_placements(pos, size, mass, params: Params = Params()) -> SoftProble
 def soft_problem(layout: Layout, params: Params = Params()) -> SoftProblem:
     """The :class:`SoftProblem` of a plain layout (every brick its own unit)."""
     return compile_soft(layout, (), params).problem
-
-
-def pad_soft(prob: SoftProblem, n_pad: int | None = None, m_pad: int | None = None,
-             p_pad: int | None = None) -> SoftProblem:
-    """Pad to (n_pad bricks, m_pad columns, p_pad points per group); default
-    the bucket ladder of :func:`model.bucket_size`, so similar sizes share a
-    compiled solver. Padding bricks have no columns and no mass; padding
-    columns are inert (zero wrench, masked)."""
-    n, m = prob.mass.shape[0], prob.col_kind.shape[0]
-    P = prob.group.shape[1]
-    n_pad = bucket_size(n) if n_pad is None else n_pad
-    m_pad = bucket_size(m, base=64) if m_pad is None else m_pad
-    p_pad = bucket_size(P, base=4) if p_pad is None else p_pad
-    if n_pad < n or m_pad < m or p_pad < P:
-        raise ValueError(f"cannot pad (n={n}, m={m}, P={P}) to ({n_pad}, {m_pad}, {p_pad})")
-    dm, dn = m_pad - m, n_pad - n
-    cb = np.where(np.asarray(prob.col_brick) >= n, n_pad, prob.col_brick)
-    cb = np.concatenate([cb, np.full((dm, 2), n_pad)]).astype(np.int32)
-    grp = np.full((n_pad, p_pad), m_pad, np.int32)
-    g = np.asarray(prob.group)
-    grp[:n, :P] = np.where(g >= m, m_pad, g)
-    return SoftProblem(
-        col_brick=cb,
-        col_coef=np.concatenate([prob.col_coef, np.zeros((dm, 2, 6))]),
-        col_kind=np.concatenate([prob.col_kind, np.full(dm, KNOB, np.int8)]),
-        col_mask=np.concatenate([prob.col_mask, np.zeros(dm, bool)]),
-        group=grp,
-        mass=np.concatenate([prob.mass, np.zeros(dn)]),
-        brick_mask=np.concatenate([prob.brick_mask, np.zeros(dn, bool)]),
-        unit=np.concatenate([prob.unit, np.arange(n, n_pad)]).astype(np.int32),
-    )
-
-
-def stack_soft(problems: Sequence[SoftProblem]) -> SoftProblem:
-    """Stack equally padded problems along a new leading (batch) axis."""
-    return SoftProblem(*[np.stack(a) for a in zip(*problems)])

@@ -1,11 +1,15 @@
 import os
 import sys
+import tempfile
 
 import jax
 import pytest
 
-jax.config.update("jax_enable_x64", True)
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
+
+# The library's disk caches (compiled solvers) go to a folder of this test run,
+# never to the user's ~/.cache; subprocesses started by tests inherit it.
+os.environ.setdefault("STABLELEGO_CACHE_DIR", tempfile.mkdtemp(prefix="stablelego-test-cache-"))
 
 EXAMPLES = os.path.join(os.path.dirname(__file__), "..", "examples")
 
@@ -14,3 +18,11 @@ SHARED = os.path.join(os.path.dirname(__file__), "..", "..", "shared")
 SHARED_REF = os.path.join(SHARED, "reference", "stablelego")
 SHARED_BRICKGPT = os.path.join(SHARED, "reference", "brickgpt")
 needs_shared = pytest.mark.skipif(not os.path.isdir(SHARED_REF), reason="shared reference folder absent")
+
+
+@pytest.fixture
+def x64():
+    """64-bit JAX types for a test's own JAX code (the library switches them on
+    for its own work; the test process, like a user's, runs in float32)."""
+    with jax.enable_x64(True):
+        yield

@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 from conftest import EXAMPLES
 
-from generators.dataset import write_object
-from generators.procedural import stairs, tower
-from stablelego_jax.api import analyze
-from stablelego_jax.batch import batch_sizes, find_layouts, plan_bytes, read_results, score_files, solve_plan
+from stablelego_jax.generate.objects import analyze_and_write
+from stablelego_jax.generate.procedural import stairs, tower
+from stablelego_jax.analysis import analyze
+from stablelego_jax.batch import batch_sizes, find_layouts, plan_bytes, read_results, score_files
 from stablelego_jax.cli import main
 
 REF = os.path.join(EXAMPLES, "stablelego")
@@ -29,8 +29,8 @@ def shard(tmp_path):
         shutil.copy(os.path.join(REF, name), d / name)
     shutil.copy(os.path.join(EXAMPLES, "labels_stablelego.json"), d / "labels.json")  # not a layout: skipped
     ds = tmp_path / "dataset"
-    write_object(str(ds / "obj_a"), stairs(3), vis=False)
-    write_object(str(ds / "obj_b"), tower(3), vis=False)
+    analyze_and_write(str(ds / "obj_a"), stairs(3), vis=False)
+    analyze_and_write(str(ds / "obj_b"), tower(3), vis=False)
     return tmp_path
 
 
@@ -119,16 +119,6 @@ def test_batch_sizes_respect_memory_and_devices():
     assert batch_sizes(10 * big, 64, 2) == 2
     # the layer-by-layer plan of a 20-layer blob needs far less than its dense form
     assert plan_bytes(("layered", 20, 40), 8192) < plan_bytes(("dense", 800), 8192) / 10
-
-
-def test_solve_plan_picks_layers_for_big_layouts():
-    from stablelego_jax.model import compile_layout
-    from generators.procedural import tower
-
-    assert solve_plan(compile_layout(tower(3)))[0] == "dense"
-    wide = compile_layout(stairs(60))
-    key = solve_plan(wide)
-    assert key[0] == "layered" and key[1] >= 60
 
 
 def test_sharded_over_four_cpu_devices_matches(shard, tmp_path):

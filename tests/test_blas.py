@@ -1,10 +1,10 @@
 import pytest
 
-from stablelego_jax.blas import _openblas, one_blas_thread
+from stablelego_jax.blas import one_blas_thread, openblas_library
 
 
 def test_one_blas_thread_sets_and_restores():
-    lib = _openblas()
+    lib = openblas_library()
     if lib is None:
         pytest.skip("SciPy without its bundled OpenBLAS")
     lib.scipy_openblas_set_num_threads(2)
@@ -15,7 +15,7 @@ def test_one_blas_thread_sets_and_restores():
 
 
 def test_restored_after_an_error():
-    lib = _openblas()
+    lib = openblas_library()
     if lib is None:
         pytest.skip("SciPy without its bundled OpenBLAS")
     before = lib.scipy_openblas_get_num_threads()

@@ -217,7 +217,7 @@ def test_all_bad(tmp_path, capsys):
 
 
 def test_unexpected_exception_is_reported_per_file(tmp_path, capsys, monkeypatch):
-    import stablelego_jax.api as api
+    import stablelego_jax.analysis as api
 
     real = api.analyze
 
@@ -235,7 +235,7 @@ def test_unexpected_exception_is_reported_per_file(tmp_path, capsys, monkeypatch
 
 
 def test_not_converged_warns_on_stderr(capsys, monkeypatch):
-    import stablelego_jax.api as api
+    import stablelego_jax.analysis as api
 
     real = api.analyze
 

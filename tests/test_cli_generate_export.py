@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 import trimesh
 
-from generators.dataset import read_object
+from stablelego_jax.formats.dataset import read_object
 from stablelego_jax import cli, load_layout
-from stablelego_jax.ldraw import read_ldr
+from stablelego_jax.formats.ldraw import read_ldr
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 GUITAR = os.path.join(HERE, "..", "examples", "brickgpt", "guitar.txt")

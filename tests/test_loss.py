@@ -11,9 +11,12 @@ import pytest
 from blas_threads import one_blas_thread  # noqa: F401  (module fixture: one BLAS thread)
 from conftest import EXAMPLES
 from stablelego_jax import load_layout
-from stablelego_jax.api import analyze_layout
+from stablelego_jax.analysis import analyze_layout
 from stablelego_jax.loss import LossOptions, soft_report, stability_loss
-from stablelego_jax.soft import candidate_brick, compile_soft, pad_soft, soft_problem, stack_soft
+from stablelego_jax.soft import candidate_brick, compile_soft, soft_problem
+from stablelego_jax.solvers.problem import pad_soft, stack_soft
+
+pytestmark = pytest.mark.usefixtures("x64")  # the tests jit and differentiate the loss themselves
 
 REF = os.path.join(EXAMPLES, "stablelego")
 LABELS = json.load(open(os.path.join(EXAMPLES, "labels_stablelego.json")))
@@ -80,14 +83,14 @@ def test_weight_zero_is_exactly_absent():
     np.testing.assert_allclose(l1[: lay.n], l0[: lay.n], rtol=1e-5, atol=1e-9)
     assert (np.asarray(l1)[lay.n:] == 0).all() and (np.asarray(s1)[lay.n:] == 0).all()
     # exactly: at weight 0 no candidate force enters a base brick's residual or drag maximum
-    from stablelego_jax import loss as L
+    from stablelego_jax.solvers.soft_ipm import brick_residual, soft_context
 
     prob = _pad(soft.problem)
-    ctx = L._context(_weights(soft), None, prob, OPTS.params)
+    ctx = soft_context(_weights(soft), None, prob, OPTS.params)
     cand_col = np.isin(np.asarray(prob.col_brick), np.arange(lay.n, soft.n)).any(axis=1)
     phi = np.random.default_rng(0).normal(size=SHAPE[1])
     phi2 = np.where(cand_col, phi + 10.0, phi)
-    r1, r2 = np.asarray(L._rho(ctx, jnp.asarray(phi))), np.asarray(L._rho(ctx, jnp.asarray(phi2)))
+    r1, r2 = np.asarray(brick_residual(ctx, jnp.asarray(phi))), np.asarray(brick_residual(ctx, jnp.asarray(phi2)))
     np.testing.assert_array_equal(r1[: lay.n], r2[: lay.n])
     base_group = np.asarray(ctx.owner)[cand_col] < lay.n  # candidate contacts under base bricks
     assert base_group.any() and (np.asarray(ctx.o0)[cand_col][base_group] == 0).all()

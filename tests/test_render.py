@@ -5,7 +5,8 @@ import time
 import numpy as np
 import pytest
 
-from stablelego_jax.io import load_layout, parse_text_layout
+from stablelego_jax.formats.reader import load_layout
+from stablelego_jax.formats.stablelego import parse_text_layout
 from stablelego_jax.layout import make_layout
 from stablelego_jax.render import contact_sheet, render_heatmap, render_pair
 

@@ -7,16 +7,9 @@ import pytest
 from conftest import EXAMPLES
 from stablelego_jax import load_layout, make_layout
 from stablelego_jax.layout import LayoutError
-from stablelego_jax.model import KNOB, NORMAL, compile_layout
-from stablelego_jax.soft import (
-    apply_candidates,
-    candidate_brick,
-    compile_soft,
-    fresh_keys,
-    pad_soft,
-    soft_problem,
-    stack_soft,
-)
+from stablelego_jax.model import NORMAL, compile_layout
+from stablelego_jax.soft import apply_candidates, candidate_brick, compile_soft, fresh_keys, soft_problem
+from stablelego_jax.solvers.problem import pad_soft
 
 STAIR20 = os.path.join(EXAMPLES, "stablelego", "stair_20.json")
 
@@ -125,26 +118,6 @@ def test_fresh_keys_and_apply_candidates():
         candidate_brick([(0, 0, 0, 3, 3)])
 
 
-def test_pad_and_stack():
-    lay = load_layout(STAIR20)
-    soft = compile_soft(lay, [candidate_brick([(4, 21, 0, 1, 2)])])
-    p = soft.problem
-    q = pad_soft(p, 32, 1024, 32)
-    assert q.mass.shape == (32,) and q.col_kind.shape == (1024,) and q.group.shape == (32, 32)
-    assert not q.brick_mask[soft.n:].any() and not q.col_mask[p.col_kind.shape[0]:].any()
-    assert (q.col_kind[p.col_kind.shape[0]:] == KNOB).all()
-    assert (q.col_coef[p.col_kind.shape[0]:] == 0).all()
-    assert (q.col_brick[p.col_kind.shape[0]:] == 32).all()
-    assert (q.col_brick[: p.col_kind.shape[0]][p.col_brick == soft.n] == 32).all()  # baseplate moved to the new n
-    np.testing.assert_array_equal(q.unit[soft.n:], np.arange(soft.n, 32))
-    auto = pad_soft(p)
-    assert auto.mass.shape[0] >= soft.n and auto.col_kind.shape[0] >= p.col_kind.shape[0]
-    with pytest.raises(ValueError, match="cannot pad"):
-        pad_soft(p, 8, 1024, 32)
-    s = stack_soft([q, q])
-    assert s.col_coef.shape == (2, 1024, 2, 6)
-
-
 # --------------------------------------------------------------------------
 # compile_placements: placements that may overlap (the generator's soft layouts)
 
@@ -209,12 +182,14 @@ def _subset_loss_check(subsets):
         assert abs(got - ref) <= 1e-8 * max(1.0, abs(ref))
 
 
+@pytest.mark.usefixtures("x64")  # the check jits the loss itself
 def test_compile_placements_subset_loss_equals_layout_loss():
     """w = 1 on a non-overlapping subset, 0 elsewhere: the subset's own loss
     (the zero-weight placements and their columns have no effect)."""
     _subset_loss_check(SUBSETS[:5])
 
 
+@pytest.mark.usefixtures("x64")
 def test_compile_placements_subset_loss_hard_case():
     """Contacts between absent placements: the interior point used to blow up
     its complementarity gap here (opt_res 1.0 after 30 iterations); a step

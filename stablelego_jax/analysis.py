@@ -1,0 +1,238 @@
+"""High-level analysis: layout -> compiled model -> solve -> Eq. 10 scores."""
+from __future__ import annotations
+
+import dataclasses
+import time
+
+import numpy as np
+
+from .blas import one_blas_thread
+from .formats.reader import load_layout
+from .layout import Layout, LayoutError, Library
+from .model import ForceModel, Params, compile_layout
+from .score import brick_scores, residual
+from .solvers.baselines import METHODS, residual_split, solve_baseline
+from .solvers.exact import solve_exact
+
+# The JAX solvers are imported where they are used: importing JAX costs most
+# of a second, which an exact-solver run never needs.
+
+__all__ = ["Analysis", "analyze", "analyze_layout", "analyze_baseline", "make_analysis", "error_message",
+           "solve_jax", "solver_fn"]
+
+
+@dataclasses.dataclass
+class Analysis:
+    """Result of analysing one layout.
+
+    scores: {key: Eq. 10 score}; stable: every score < 1; weakest: key of
+    the highest score (ties broken by the larger drag); forces: (m,) solved
+    force per column (N, see model.ForceModel); max_drag: {key: N};
+    residual: (n, 6) equilibrium residual (N, N m); converged/iters/gap:
+    solver diagnostics (the exact solver reports HiGHS success).
+    method: "ours" (paper Eq. 9) or a baseline ("luo", "eb"; see
+    :mod:`~stablelego_jax.solvers.baselines`, where stable == solvable and an
+    unsolvable layout has no scores, weakest or forces); solvable: always
+    True for ours.
+    """
+
+    file: str
+    layout: Layout
+    model: ForceModel
+    solver: str
+    scores: dict
+    stable: bool
+    weakest: str
+    forces: np.ndarray
+    max_drag: dict
+    residual: np.ndarray
+    converged: bool
+    time_s: float
+    iters: int = 0
+    gap: float = 0.0
+    objective: float = float("nan")
+    method: str = "ours"
+    solvable: bool | None = True
+
+    def to_json(self) -> dict:
+        out = {
+            "file": self.file,
+            "stable": self.stable,
+            "weakest": self.weakest,
+            "scores": {k: round(float(v), 6) for k, v in self.scores.items()},
+            "n_bricks": self.layout.n,
+            "solver": self.solver,
+            "converged": self.converged,
+            "time_s": round(self.time_s, 6),
+        }
+        if self.method != "ours":  # baselines (see baselines.py): "unsolvable" is an answer
+            out.update(method=self.method, solvable=self.solvable)
+        return out
+
+
+def error_message(path: str, exc: Exception) -> str:
+    """One-line message for an input that failed, naming ``path`` once
+    (layout and file errors as they are, anything else with its type)."""
+    text = str(exc) if isinstance(exc, (LayoutError, OSError)) else f"{type(exc).__name__}: {exc}"
+    return text if path in text else f"{path}: {text}"
+
+
+def solver_fn(params: Params, opts):
+    """``fn(*problem arrays) -> tuple(Solution)`` of the JAX solver that
+    ``opts`` selects (:class:`~stablelego_jax.solvers.ipm.IPMOptions`: interior
+    point; :class:`~stablelego_jax.solvers.admm.SolverOptions`: ADMM), for
+    :func:`~stablelego_jax.solvers.compiled.compiled`."""
+    from .solvers import admm, ipm
+    from .solvers.problem import Problem
+
+    solve = admm.solve if isinstance(opts, admm.SolverOptions) else ipm.solve
+
+    def fn(*arrays):
+        return tuple(solve(Problem(*arrays), params, opts))
+
+    return fn
+
+
+def solve_jax(model: ForceModel, opts=None):
+    """Solve one model with a compiled JAX solver, padded to its bucket.
+
+    opts: :class:`~stablelego_jax.solvers.ipm.IPMOptions` or None (interior point,
+    dense or layer-by-layer as :func:`~stablelego_jax.solvers.problem.solve_plan`
+    chooses) or :class:`~stablelego_jax.solvers.admm.SolverOptions` (ADMM).
+    Returns (Solution of numpy arrays, model the forces belong to: padded,
+    bricks in input order)."""
+    import jax
+
+    from .solvers import admm, ipm
+    from .solvers.compiled import compiled
+    from .solvers.problem import MIN_COLUMNS, MIN_SLOTS, Solution, pad_to_bucket, plan_problem, rung, solve_plan, \
+        to_problem
+
+    if isinstance(opts, admm.SolverOptions):
+        padded = pad_to_bucket(model)
+        prob, name = to_problem(padded), "admm"
+    else:
+        opts = opts or ipm.IPMOptions()
+        m_pad, p_pad = rung(model.m, MIN_COLUMNS), rung(model.group.shape[1], MIN_SLOTS)
+        padded, prob = plan_problem(model, solve_plan(model), m_pad, p_pad)
+        name = "ipm"
+    arrays = tuple(a for a in prob if a is not None)
+    exe = compiled(name, solver_fn(model.params, opts), (model.params, opts), arrays)
+    return Solution(*jax.device_get(exe(*arrays))), padded
+
+
+def make_analysis(layout, model, f, solver, converged, t0, **diag) -> Analysis:
+    """The :class:`Analysis` of forces ``f`` ((m_pad,) N) solved on ``model``
+    for ``layout`` by ``solver``; ``t0``: start time (perf_counter)."""
+    s, bad, dmax = (np.asarray(a)[: model.n] for a in brick_scores(model, f))
+    order = np.lexsort((dmax, s))  # by score, then drag
+    w = int(order[-1])
+    return Analysis(
+        file=layout.source,
+        layout=layout,
+        model=model,
+        solver=solver,
+        scores=dict(zip(layout.keys, s.tolist())),
+        stable=bool((s < 1.0).all()),
+        weakest=layout.keys[w],
+        forces=np.asarray(f)[: model.m],
+        max_drag=dict(zip(layout.keys, dmax.tolist())),
+        residual=np.asarray(residual(model, f))[: model.n],
+        converged=bool(converged),
+        time_s=time.perf_counter() - t0,
+        **diag,
+    )
+
+
+def analyze_layout(
+    layout: Layout,
+    solver: str = "jax",
+    params: Params = Params(),
+    opts=None,
+    exact_method: str = "highs",
+    exact_scale: bool = True,
+    method: str = "ours",
+) -> Analysis:
+    """Analyse an in-memory layout with ``solver`` in {"jax", "admm", "exact"}.
+
+    "jax": the batched-ready interior-point solver (:mod:`~stablelego_jax.solvers.ipm`;
+    ``opts`` an IPMOptions, or a SolverOptions to run ADMM instead);
+    "admm": the first-order solver (:mod:`~stablelego_jax.solvers.admm`);
+    "exact": HiGHS.
+
+    ``exact_method``, ``exact_scale``: HiGHS method and row scaling of the
+    exact solver (see :func:`~stablelego_jax.solvers.exact.solve_exact`;
+    "highs-ipm" with scaling is the fast, robust choice for layouts of
+    hundreds of bricks). ``method``: "ours" (paper Eq. 9), or the baselines
+    "luo" / "eb" (exact solver only; see :mod:`~stablelego_jax.solvers.baselines`)."""
+    if method not in METHODS:
+        raise ValueError(f"unknown method {method!r} (expected one of {', '.join(METHODS)})")
+    if method != "ours" and solver != "exact":
+        raise ValueError(f"method {method!r} runs on the exact solver only (solver='exact'), not {solver!r}")
+    t0 = time.perf_counter()
+    model = compile_layout(layout, params)
+    if method != "ours":
+        return analyze_baseline(layout, model, method, t0, exact_method=exact_method, scale=exact_scale)
+    if solver == "exact":
+        r = solve_exact(model, method=exact_method, scale=exact_scale)
+        return make_analysis(layout, model, r.f, "exact", r.success, t0, objective=r.objective)
+    if solver not in ("jax", "admm"):
+        raise ValueError(f"unknown solver {solver!r} (expected 'jax', 'admm' or 'exact')")
+    if solver == "admm":
+        from .solvers.admm import SolverOptions
+
+        opts = opts if isinstance(opts, SolverOptions) else SolverOptions()
+    with one_blas_thread():  # JAX's CPU LAPACK goes through OpenBLAS (see blas.py)
+        sol, padded = solve_jax(model, opts)
+        f = np.asarray(sol.f)
+    return make_analysis(
+        layout, padded, f, solver, bool(sol.converged), t0,
+        iters=int(sol.iters), gap=float(sol.gap), objective=float(sol.objective),
+    )
+
+
+def analyze(
+    source,
+    solver: str = "jax",
+    library: Library | str | None = None,
+    params: Params = Params(),
+    opts=None,
+    method: str = "ours",
+) -> Analysis:
+    """Analyse a layout file / dataset folder path, or a Layout (``method``:
+    see :func:`analyze_layout`)."""
+    layout = source if isinstance(source, Layout) else load_layout(str(source), library)
+    return analyze_layout(layout, solver=solver, params=params, opts=opts, method=method)
+
+
+def analyze_baseline(layout: Layout, model: ForceModel, method: str, t0: float | None = None, **kw) -> Analysis:
+    """An :class:`Analysis` of ``layout`` (compiled as ``model``) under
+    baseline ``method``; ``kw`` go to
+    :func:`~stablelego_jax.solvers.baselines.solve_baseline`.
+
+    ``solvable`` and ``stable`` (= solvable) are the baseline's answer;
+    ``scores`` are each brick's capacity use, largest bottom drag / T (at
+    most 1 by the constraint; the paper's Eq. 10 without its equilibrium
+    test, which is a constraint here); ``weakest`` the brick using most.
+    An unsolvable layout has no forces: empty ``scores``/``max_drag``,
+    ``weakest``, ``forces`` and ``residual`` None. ``converged`` says the
+    solver reached a definite answer (optimal or proved infeasible).
+    """
+    t0 = time.perf_counter() if t0 is None else t0
+    r = solve_baseline(model, method, **kw)
+    keys = list(layout.keys)
+    scores, dmax, weakest, res = {}, {}, None, None
+    if r.solvable:
+        T = model.params.T
+        s = np.minimum(r.max_drag / T, 1.0)
+        scores = dict(zip(keys, s.tolist()))
+        dmax = dict(zip(keys, r.max_drag.tolist()))
+        weakest = keys[int(np.lexsort((r.max_drag, s))[-1])]
+        res = residual_split(model, r.f_split)
+    forces = r.f[: model.m] if r.f is not None else r.f_split
+    return Analysis(
+        file=layout.source, layout=layout, model=model, solver="exact", scores=scores,
+        stable=bool(r.solvable), weakest=weakest, forces=forces, max_drag=dmax, residual=res,
+        converged=r.success, time_s=time.perf_counter() - t0,
+        objective=r.objective, method=method, solvable=r.solvable,
+    )

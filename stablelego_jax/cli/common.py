@@ -1,0 +1,30 @@
+"""Helpers shared by the subcommands: the solver choice and heat-map paths."""
+from __future__ import annotations
+
+import os
+
+__all__ = ["solver_for", "png_target"]
+
+
+def solver_for(args) -> str:
+    """--solver as given, else jax for ours and exact for the baselines."""
+    return args.solver or ("jax" if args.method == "ours" else "exact")
+
+
+def png_target(png: str, path: str, many: bool, used: set) -> str:
+    """PNG path for ``path``: ``png`` itself for one file, else ``png/<stem>.png``.
+
+    One file and ``png`` an existing folder (or ending in a separator) also
+    gives ``png/<stem>.png``. Two inputs with the same stem get ``<stem>-2.png``,
+    ``<stem>-3.png``, ... instead of overwriting each other.
+    """
+    if not many and not (os.path.isdir(png) or png.endswith(("/", os.sep))):
+        return png
+    os.makedirs(png, exist_ok=True)
+    stem = os.path.splitext(os.path.basename(os.path.normpath(path)))[0] or "layout"
+    name, k = stem + ".png", 1
+    while name in used:
+        k += 1
+        name = f"{stem}-{k}.png"
+    used.add(name)
+    return os.path.join(png, name)

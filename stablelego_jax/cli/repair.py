@@ -1,0 +1,221 @@
+"""``stablelego repair IN --out OUT [--region bbox|shape|any] [--max-add K] [--allow-remove] [--png P]``:
+the command line of :mod:`stablelego_jax.design.repair`."""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+
+__all__ = ["add_parser", "cmd_repair"]
+
+
+def add_parser(sub) -> None:
+    r = sub.add_parser(
+        "repair",
+        help="add bricks to an unstable layout until it stands (gradient-guided)",
+        description="Repair an unstable layout: candidate bricks near the weakest bricks (supports, bridges, "
+                    "longer replacements with --allow-remove) are ranked by the gradient of the differentiable "
+                    "stability loss with respect to their existence weights, the best are checked with the exact "
+                    "solver, and the best is added; repeated until the exact solver says the layout stands or "
+                    "--max-add bricks are spent. Original bricks keep their keys and places; new bricks get new "
+                    "keys. OUT is written in the format of IN only when the result stands.",
+    )
+    r.add_argument("layout", metavar="IN", help="layout file (JSON, text, .ldr) or dataset object folder")
+    r.add_argument("--out", required=True, metavar="OUT", help="where to write the repaired layout (format of IN)")
+    r.add_argument("--region", choices=["bbox", "shape", "any"], default="bbox",
+                   help="where new bricks may go: bbox (default: the layout's bounding box down to the "
+                        "baseplate), shape (above or below the layout's own columns), any")
+    r.add_argument("--max-add", type=_nonneg, default=4, metavar="K", help="most bricks to add (default 4)")
+    r.add_argument("--allow-remove", action="store_true",
+                   help="allow replacing a user brick by a longer one (otherwise user bricks are never touched)")
+    r.add_argument("--png", metavar="P", help="before/after heat maps (PNG)")
+    r.add_argument("--library", help="brick library JSON of IN (default: the StableLego library)")
+    r.add_argument("--method", choices=["gradient", "greedy"], default="gradient",
+                   help="gradient (default): rank candidates by the loss gradient; greedy: full solve of every one")
+    r.add_argument("--verify", type=_positive, default=3, metavar="V",
+                   help="best-ranked candidates checked with the exact solver per step (default 3)")
+    r.add_argument("--json", action="store_true", help="print one JSON object instead of text")
+    r.set_defaults(func=cmd_repair)
+
+
+def _nonneg(v: str) -> int:
+    try:
+        k = int(v)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {v!r}") from None
+    if k < 0:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {k}")
+    return k
+
+
+def _positive(v: str) -> int:
+    k = _nonneg(v)
+    if k < 1:
+        raise argparse.ArgumentTypeError("expected an integer >= 1")
+    return k
+
+
+def _relabel_text(result, path: str):
+    """Text layouts are keyed by line number: new bricks take the numbers of
+    the lines they are appended as."""
+    import dataclasses
+
+    with open(path, encoding="utf-8") as fh:
+        n_lines = len(fh.read().splitlines())
+    new = [k for k in result.layout.keys if k not in set(result.original.keys)]
+    mapping = {k: str(n_lines + 1 + i) for i, k in enumerate(new)}
+    lay = dataclasses.replace(result.layout, keys=tuple(mapping.get(k, k) for k in result.layout.keys))
+    for c in result.changes:
+        c.keys = [mapping.get(k, k) for k in c.keys]
+    result.layout = lay
+    return result
+
+
+def _write_text(result, src: str, out: str) -> None:
+    from ..files import atomic_write_text
+    from ..formats.stablelego import layout_to_text
+    from ..layout import LayoutError
+
+    with open(src, encoding="utf-8") as fh:
+        lines = fh.read().splitlines()
+    removed = set(result.removed)
+    for i, k in enumerate(result.original.keys):
+        if k in removed:
+            lines[int(k) - 1] = f"# {lines[int(k) - 1].strip()}  (removed by stablelego repair)"
+    new = [k for k in result.layout.keys if k not in set(result.original.keys)]
+    sub = result.layout.subset([result.layout.keys.index(k) for k in new])
+    try:
+        add = layout_to_text(sub).splitlines() if new else []
+    except LayoutError as exc:
+        raise LayoutError(out, exc.message, exc.key) from None
+    atomic_write_text(out, "\n".join(lines + add) + "\n")
+
+
+def _with_library_ids(layout, new_keys, library):
+    """Give new bricks the ids of ``library`` (same size, Table I mass);
+    LayoutError naming the library when it has none."""
+    import dataclasses
+    import math
+
+    from ..formats.stablelego import as_library
+    from ..layout import LayoutError
+
+    lib = as_library(library)
+    bids, oris = list(layout.brick_id), layout.ori.copy()
+    for i, k in enumerate(layout.keys):
+        if k not in new_keys:
+            continue
+        sx, sy = (int(v) for v in layout.size[i])
+        found = None
+        for bid, (h, w, m) in lib.bricks.items():
+            if math.isclose(m, float(layout.mass[i]), rel_tol=1e-9) and (h, w) in ((sx, sy), (sy, sx)):
+                found = (bid, 0 if (h, w) == (sx, sy) else 1)
+                break
+        if found is None:
+            raise LayoutError(lib.source, f"library has no {sx}x{sy} brick of {layout.mass[i] * 1e3:g} g "
+                                          "for a repair brick")
+        bids[i], oris[i] = found
+    return dataclasses.replace(layout, brick_id=tuple(bids), ori=oris)
+
+
+def _library_sizes(library) -> tuple:
+    """Footprints of the real (Table I mass) bricks of a library, both orientations."""
+    import math
+
+    from ..formats.stablelego import as_library
+    from ..layout import TABLE_I_MASS_KG
+
+    out = set()
+    for h, w, m in as_library(library).bricks.values():
+        key = (min(h, w), max(h, w))
+        if key in TABLE_I_MASS_KG and math.isclose(m, TABLE_I_MASS_KG[key], rel_tol=1e-9):
+            out.update({(h, w), (w, h)})
+    return tuple(sorted(out))
+
+
+def _write(result, src: str, out: str, library) -> None:
+    fmt = result.original.fmt
+    new_keys = set(result.layout.keys) - set(result.original.keys)
+    if fmt == "text":
+        _write_text(result, src, out)
+    elif fmt == "ldr":
+        from ..formats.ldraw import write_ldr
+
+        write_ldr(result.layout, out)
+    elif fmt == "dataset":
+        from ..formats.dataset import write_object
+
+        write_object(out, result.layout, dict(result.after.scores), vis=True,
+                     meta={"repaired_from": src, "added": sorted(new_keys)})
+    else:
+        from ..formats.reader import write_layout
+
+        lay = _with_library_ids(result.layout, new_keys, library) if library else result.layout
+        write_layout(lay, out, fmt="json", library=library)
+
+
+def cmd_repair(args) -> int:
+    from ..analysis import error_message
+    from ..formats.reader import load_layout
+    from ..layout import LayoutError
+    from ..design.repair import RepairOptions, greedy_repair, repair
+
+    path = args.layout
+    try:
+        layout = load_layout(path, args.library)
+        if layout.fmt == "dataset" and os.path.exists(args.out):
+            raise LayoutError(args.out, "already exists (dataset objects are written as new folders)")
+        opts = RepairOptions(region=args.region, max_add=args.max_add, allow_remove=args.allow_remove,
+                             verify=args.verify, sizes=_library_sizes(args.library) if args.library else None)
+        result = (repair if args.method == "gradient" else greedy_repair)(layout, opts)
+        if layout.fmt == "text":
+            result = _relabel_text(result, path)
+        if result.stable:
+            _write(result, path, args.out, args.library)
+        png = None
+        if args.png:
+            from ..render import render_pair
+
+            b, a = result.before, result.after
+            render_pair(b.layout, [b.scores[k] for k in b.layout.keys], a.layout, [a.scores[k] for k in a.layout.keys],
+                        args.png, titles=("before", "after repair" if result.stable else "after (still unstable)"))
+            png = args.png
+    except (LayoutError, OSError, ValueError) as exc:
+        msg = error_message(path, exc)
+        if args.json:
+            print(json.dumps({"file": path, "error": msg}), flush=True)
+        else:
+            print(f"error: {msg}", file=sys.stderr, flush=True)
+        return 1
+    b, a = result.before, result.after
+    if args.json:
+        print(json.dumps({
+            "file": path, "out": args.out if result.stable else None, "stable_before": b.stable,
+            "stable": result.stable, "added": [{"key": k, "pos": [int(v) for v in p], "size": [int(v) for v in s],
+                                                "kind": c.candidate.kind}
+                                               for c in result.changes
+                                               for k, p, s in zip(c.keys, c.candidate.pos, c.candidate.size)],
+            "removed": result.removed, "exact_calls": result.exact_calls, "soft_calls": result.soft_calls,
+            "time_s": round(result.time_s, 3), "method": result.method, "png": png,
+        }), flush=True)
+    else:
+        n_fail = sum(s >= 1.0 for s in b.scores.values())
+        head = f"{path}: {'STABLE' if b.stable else f'UNSTABLE (weakest {b.weakest!r}, {n_fail} failing)'}"
+        if b.stable:
+            print(f"{head}: nothing to repair")
+        elif result.stable:
+            print(f"{head} -> STABLE with {result.added} added brick{'s' * (result.added != 1)}"
+                  f"{f', {len(result.removed)} replaced' if result.removed else ''} "
+                  f"({result.method}; {result.exact_calls} exact + {result.soft_calls} gradient solver calls, "
+                  f"{result.time_s:.1f} s)")
+        else:
+            print(f"{head} -> still UNSTABLE after {result.added} added brick{'s' * (result.added != 1)} "
+                  f"(weakest {a.weakest!r}); not written")
+        for c in result.changes:
+            print(f"  added {c.describe()}")
+        if result.stable:
+            print(f"  wrote {args.out}")
+        if png:
+            print(f"  before/after: {png}")
+    return 0 if result.stable else 1

@@ -1,0 +1,62 @@
+"""``stablelego score INPUT... --out RESULTS [--solver ...] [--batch N] [--devices D] [--write-scores]``"""
+from __future__ import annotations
+
+import sys
+
+from .common import solver_for
+
+__all__ = ["add_parser", "cmd_score"]
+
+
+def add_parser(sub, methods, exact_methods) -> None:
+    sc = sub.add_parser(
+        "score",
+        help="score many layouts in batches into a JSON-lines file (resumable)",
+        description="Score every layout of INPUT (files, folders of layout files, StableLego dataset folders "
+                    "with one object per sub-folder) into RESULTS, one JSON object per line as 'analyze "
+                    "--json'. Layouts are grouped by size and solved in vmap-ed batches sharded over the "
+                    "local devices. Rerunning skips the layouts already in RESULTS.",
+    )
+    sc.add_argument("inputs", nargs="+", metavar="INPUT")
+    sc.add_argument("--out", required=True, metavar="RESULTS", help="JSON-lines results file (appended)")
+    sc.add_argument("--solver", choices=["jax", "admm", "exact"], default=None,
+                    help="jax (interior point in JAX, default for --method ours), admm (first-order JAX solver) "
+                        "or exact (HiGHS; the only one for luo and eb)")
+    sc.add_argument("--method", choices=list(methods), default="ours",
+                    help="ours (default), luo or eb (baselines, exact solver; lines get 'solvable')")
+    sc.add_argument("--exact-method", choices=list(exact_methods), default="highs",
+                    help="HiGHS method of --solver exact (default highs: HiGHS chooses)")
+    sc.add_argument("--batch", type=int, default=64, help="most layouts per solver call (default 64)")
+    sc.add_argument("--devices", default="all", help="'all' or the number of local devices to shard over")
+    sc.add_argument("--write-scores", action="store_true",
+                    help="also write stability_score.npy beside each dataset object")
+    sc.add_argument("--library", help="brick library JSON (default: the StableLego library)")
+    sc.add_argument("--quiet", action="store_true", help="no progress bar")
+    sc.set_defaults(func=cmd_score)
+
+
+def cmd_score(args) -> int:
+    from ..batch import score_files
+
+    if args.batch < 1:
+        print("error: --batch must be >= 1", file=sys.stderr)
+        return 2
+    if args.method != "ours" and solver_for(args) != "exact":
+        print(f"error: --method {args.method} runs on the exact solver only (--solver exact)", file=sys.stderr)
+        return 2
+    try:
+        st = score_files(
+            args.inputs, args.out, solver=solver_for(args), batch=args.batch, devices=args.devices,
+            write_scores=args.write_scores, library=args.library, progress=not args.quiet,
+            exact_method=args.exact_method, method=args.method,
+        )
+    except (ValueError, OSError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    print(
+        f"{st.scored} scored, {st.skipped} already in {args.out}, {st.errors} errors, "
+        f"{st.not_converged} not converged; solve {st.solve_s:.1f} s, compile {st.compile_s:.1f} s "
+        f"({st.compiles} shapes), wall {st.wall_s:.1f} s",
+        file=sys.stderr,
+    )
+    return 1 if st.errors or st.not_converged else 0

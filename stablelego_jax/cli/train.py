@@ -1,0 +1,55 @@
+"""``stablelego train`` and ``stablelego evaluate``: the command line of
+:mod:`stablelego_jax.train` (training a layout generator with the stability
+loss, and scoring it with the exact solver)."""
+from __future__ import annotations
+
+import os
+
+__all__ = ["add_parsers", "cmd_train", "cmd_evaluate"]
+
+from ..train import CONFIGS
+from ..train.shapes import SPLITS
+
+
+def add_parsers(sub) -> None:
+    t = sub.add_parser(
+        "train", help="train a brick-layout generator with shape fidelity + lambda x the stability loss",
+        description="Train the 3D conv generator of stablelego_jax.train on procedural shapes and the meshes "
+                    "of the config's mesh_dir (a relative path is taken from the working folder). Writes "
+                    "OUT/checkpoint.npz every checkpoint_every steps and at the end, and OUT/history.json. "
+                    "Needs optax: pip install 'stablelego-jax[train]'.",
+    )
+    t.add_argument("--config", default=os.path.join(CONFIGS, "default.json"),
+                   help="JSON config (keys and defaults: stablelego_jax.train.train.DEFAULTS; "
+                        "default: the packaged configs/default.json)")
+    t.add_argument("--out", default=None, help="output folder (default out/train_lam<L>_seed<S>)")
+    t.add_argument("--resume", action="store_true", help="continue from OUT/checkpoint.npz")
+    t.add_argument("--seed", type=int, default=None, help="override the config's seed")
+    t.add_argument("--lam", type=float, default=None, help="override the config's stability weight lambda")
+    t.add_argument("--steps", type=int, default=None, help="override the config's step count")
+    t.set_defaults(func=cmd_train)
+
+    e = sub.add_parser(
+        "evaluate", help="score a trained generator's decoded layouts with the exact solver",
+        description="Decode the checkpoint's generator on the shapes of one split (strict and filled "
+                    "decodings), score each layout with HiGHS and write one JSON line per shape and method.",
+    )
+    e.add_argument("--checkpoint", required=True, help="OUT/checkpoint.npz of stablelego train")
+    e.add_argument("--out", required=True, help="results, one JSON object per line (written atomically)")
+    e.add_argument("--heuristic", action="store_true", help="also score the merge heuristic on the same shapes")
+    e.add_argument("--untrained", action="store_true",
+                   help="also score the same network at initialisation (same config and seed)")
+    e.add_argument("--split", choices=SPLITS, default="heldout")
+    e.set_defaults(func=cmd_evaluate)
+
+
+def cmd_train(args) -> int:
+    from ..train.train import run
+
+    return run(args.config, args.out, args.resume, args.seed, args.lam, args.steps)
+
+
+def cmd_evaluate(args) -> int:
+    from ..train.evaluate import run
+
+    return run(args.checkpoint, args.out, args.split, args.heuristic, args.untrained)

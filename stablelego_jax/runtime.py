@@ -1,0 +1,127 @@
+"""How the library runs JAX without changing the user's JAX: float64 in a
+scope, and a persistent cache of compiled solvers.
+
+* :func:`x64` (a decorator) and :func:`float64` (a context manager) switch
+  64-bit floats on for the library's own work only, with the scoped
+  ``jax.enable_x64`` context of the installed JAX. After ``import
+  stablelego_jax`` and any call, a user's ``jnp.zeros(3)`` is still float32
+  (unless the user enabled x64 globally). Results handed back are numpy
+  float64 arrays, or JAX arrays of the caller's precision for gradients.
+* :func:`cache_dir` is where compiled solvers are kept between processes:
+  ``$STABLELEGO_CACHE_DIR`` if set, else ``$XDG_CACHE_HOME/stablelego-jax``
+  (``~/.cache/stablelego-jax``); ``STABLELEGO_CACHE=0`` turns the disk
+  cache off. :func:`use_persistent_cache` points JAX's persistent
+  compilation cache there unless the user configured one.
+"""
+from __future__ import annotations
+
+import contextlib
+import functools
+import inspect
+import os
+
+import jax
+
+__all__ = ["x64", "x64_differentiable", "float64", "cache_dir", "use_persistent_cache"]
+
+
+def float64():
+    """Context manager: 64-bit JAX types inside, the caller's setting after."""
+    return jax.enable_x64(True)
+
+
+def x64(fn):
+    """Decorator: run ``fn`` with 64-bit JAX types (see :func:`float64`)."""
+
+    @functools.wraps(fn)
+    def wrapper(*args, **kwargs):
+        with jax.enable_x64(True):
+            return fn(*args, **kwargs)
+
+    return wrapper
+
+
+def x64_differentiable(*names: str):
+    """Decorator: like :func:`x64`, and reverse-mode differentiable in the
+    arguments ``names`` from a float32 program too. JAX runs a gradient's
+    backward pass when the caller's ``jax.grad`` does, outside the
+    decorated call, where 64-bit types would be off; here forward and
+    backward pass both run in float64 (a ``custom_vjp`` around the
+    function's own VJP), and cotangents come back in the precision of the
+    caller's arrays. Other arguments are not differentiated."""
+
+    def deco(fn):
+        sig = inspect.signature(fn)
+
+        @functools.wraps(fn)
+        def wrapper(*args, **kwargs):
+            bound = sig.bind(*args, **kwargs)
+            bound.apply_defaults()
+            diff = tuple(bound.arguments[k] for k in names)
+
+            def inner(*d):
+                b = dict(bound.arguments, **dict(zip(names, d)))
+                return fn(**b)
+
+            @jax.custom_vjp
+            def call(*d):
+                with jax.enable_x64(True):
+                    return inner(*d)
+
+            def call_fwd(*d):
+                with jax.enable_x64(True):
+                    return jax.vjp(inner, *d)
+
+            def call_bwd(back, ct):
+                with jax.enable_x64(True):
+                    return back(ct)
+
+            call.defvjp(call_fwd, call_bwd)
+            with jax.enable_x64(True):
+                return call(*diff)
+
+        return wrapper
+
+    return deco
+
+
+def cache_dir() -> str | None:
+    """The folder of the library's disk caches, or None when turned off."""
+    if os.environ.get("STABLELEGO_CACHE", "1").strip().lower() in ("0", "off", "no", "false"):
+        return None
+    d = os.environ.get("STABLELEGO_CACHE_DIR")
+    if not d:
+        base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+        d = os.path.join(base, "stablelego-jax")
+    return d
+
+
+_STATE = {"configured": False}
+
+
+def use_persistent_cache() -> str | None:
+    """Point JAX's persistent compilation cache at ``cache_dir()/xla`` (once
+    per process, before the library's first compile), unless the disk cache
+    is off or the user set ``jax_compilation_cache_dir`` already (then the
+    user's folder is used). Returns the folder in use, or None."""
+    if _STATE["configured"]:
+        return _STATE.get("dir")
+    _STATE["configured"] = True
+    user = jax.config.jax_compilation_cache_dir
+    if user:
+        _STATE["dir"] = user
+        return user
+    d = cache_dir()
+    if d is None:
+        return None
+    xla = os.path.join(d, "xla")
+    with contextlib.suppress(OSError):
+        os.makedirs(xla, exist_ok=True)
+    if not os.access(xla, os.W_OK):
+        return None
+    jax.config.update("jax_compilation_cache_dir", xla)
+    # our solvers compile in seconds; cache every one of them
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
+    jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
+    _STATE["dir"] = xla
+    return xla

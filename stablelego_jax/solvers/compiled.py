@@ -1,0 +1,163 @@
+"""Compiled solvers: the one place the library compiles JAX code for a shape.
+
+:func:`compiled` returns an ahead-of-time compiled executable of a pure
+function of flat arrays, for the shapes and dtypes of example arguments,
+and keeps it in a bounded in-process cache (least recently used first out:
+the number of executables a long run holds stays bounded). Across
+processes two disk caches under :func:`~stablelego_jax.runtime.cache_dir`
+spare the work: the function traced and lowered once, stored with
+``jax.export`` (``exported/``), and XLA's compiled code in JAX's persistent
+compilation cache (``xla/``), so a second ``stablelego analyze`` of a small
+layout neither traces nor compiles the solver again. Entries are keyed by
+the function's name and static settings, the argument shapes and dtypes,
+the JAX version, the backend and a digest of the library's source code, so
+a changed solver never meets a stale entry.
+
+Compiles are counted (:data:`STATS`) so batch runs report compile time
+apart from solve time.
+"""
+from __future__ import annotations
+
+import collections
+import dataclasses
+import functools
+import hashlib
+import os
+import time
+from typing import Callable, Hashable
+
+import jax
+import numpy as np
+
+from ..files import atomic_write
+from ..runtime import cache_dir, float64, use_persistent_cache
+
+__all__ = ["CompileStats", "STATS", "compiled", "clear", "set_limit", "cache_size", "code_digest"]
+
+
+@dataclasses.dataclass
+class CompileStats:
+    """Counters of this process: executables compiled (``compiles``, wall
+    ``compile_s`` including tracing and disk loads), of those loaded from
+    the export cache (``loaded``), in-process hits (``hits``) and
+    executables dropped by the bound (``evicted``)."""
+
+    compiles: int = 0
+    compile_s: float = 0.0
+    loaded: int = 0
+    hits: int = 0
+    evicted: int = 0
+
+
+STATS = CompileStats()
+_CACHE: "collections.OrderedDict[tuple, Callable]" = collections.OrderedDict()
+_LIMIT = {"n": 32}
+
+
+def set_limit(n: int) -> None:
+    """Keep at most ``n`` (>= 1) executables in this process."""
+    if n < 1:
+        raise ValueError(f"the executable cache needs room for at least 1, got {n}")
+    _LIMIT["n"] = int(n)
+    _evict()
+
+
+def cache_size() -> int:
+    """Executables held in this process."""
+    return len(_CACHE)
+
+
+def clear() -> None:
+    """Drop every executable of this process."""
+    _CACHE.clear()
+
+
+def _evict() -> None:
+    while len(_CACHE) > _LIMIT["n"]:
+        _CACHE.popitem(last=False)
+        STATS.evicted += 1
+
+
+@functools.lru_cache(maxsize=1)
+def code_digest() -> str:
+    """sha256 of the library's Python sources (a changed solver changes it)."""
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    h = hashlib.sha256()
+    for d, subdirs, files in sorted(os.walk(root)):
+        subdirs.sort()
+        for f in sorted(files):
+            if f.endswith(".py"):
+                p = os.path.join(d, f)
+                h.update(os.path.relpath(p, root).encode())
+                with open(p, "rb") as fh:
+                    h.update(fh.read())
+    return h.hexdigest()
+
+
+def _specs(args) -> tuple:
+    return tuple(jax.ShapeDtypeStruct(np.shape(a), np.result_type(a)) for a in args)
+
+
+def _export_path(name: str, key: tuple) -> str | None:
+    d = cache_dir()
+    if d is None:
+        return None
+    text = repr((key, jax.__version__, jax.default_backend(), code_digest()))
+    return os.path.join(d, "exported", f"{name}-{hashlib.sha256(text.encode()).hexdigest()[:32]}.bin")
+
+
+def _exported_call(name: str, fn: Callable, key: tuple, specs: tuple) -> Callable | None:
+    """``exp.call`` of the function exported once (read from disk, or
+    traced, lowered and written there now); None when the disk cache is off
+    or export is unavailable."""
+    path = _export_path(name, key)
+    if path is None:
+        return None
+    try:
+        from jax import export as jexport
+
+        if os.path.isfile(path):
+            try:
+                with open(path, "rb") as fh:
+                    exp = jexport.deserialize(bytearray(fh.read()))
+                STATS.loaded += 1
+                return exp.call
+            except Exception:  # a torn or foreign entry: export again
+                pass
+        exp = jexport.export(jax.jit(fn))(*specs)
+        blob = exp.serialize()
+        os.makedirs(os.path.dirname(path), exist_ok=True)
+        atomic_write(path, lambda fh: fh.write(blob), binary=True)
+        return exp.call
+    except (ImportError, OSError):
+        return None
+
+
+def compiled(name: str, fn: Callable, static: Hashable, args, export: bool = True) -> Callable:
+    """An executable of ``fn`` (a pure function of the flat arrays ``args``,
+    returning a tuple of arrays) compiled in float64 for their shapes and
+    dtypes. ``name`` and ``static`` (hashable: everything ``fn`` closes
+    over, e.g. parameters and options) identify it. ``export``: also use
+    the disk export cache (functions on one device)."""
+    specs = _specs(args)
+    key = (name, static, tuple((s.shape, str(s.dtype)) for s in specs))
+    exe = _CACHE.get(key)
+    if exe is not None:
+        _CACHE.move_to_end(key)
+        STATS.hits += 1
+        return exe
+    t0 = time.perf_counter()
+    use_persistent_cache()
+    with float64():
+        call = _exported_call(name, fn, key, specs) if export else None
+        aot = jax.jit(call if call is not None else fn).lower(*specs).compile()
+    STATS.compiles += 1
+    STATS.compile_s += time.perf_counter() - t0
+
+    def exe(*arrays):
+        with float64():  # float64 inputs stay float64 whatever the caller's setting
+            return aot(*arrays)
+
+    _CACHE[key] = exe
+    _evict()
+    return exe

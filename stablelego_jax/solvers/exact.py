@@ -1,0 +1,116 @@
+"""Exact referee: the Eq. 9 problem as a linear programme solved by HiGHS.
+
+Variables: forces f (m), drags D (one per NORMAL column), residual parts
+r+ and r- (6 n each) and per-brick max drag t (n). Minimises
+``sum |A f + g|_1 + alpha sum t + beta sum D`` subject to ``D >= -n``,
+``D <= t`` for every contact of the brick, SIDE presses >= 0.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from ..model import NORMAL, SIDE, ForceModel
+
+# scipy.sparse and scipy.optimize are imported where they are used: importing
+# them costs about half a second, which the JAX path of a short run never needs.
+
+__all__ = ["solve_exact", "ExactResult", "EXACT_METHODS", "equilibrium_matrix"]
+
+
+class ExactResult(dict):
+    """``f`` (m,) forces, ``objective``, ``status`` (HiGHS message), ``success``."""
+
+    __getattr__ = dict.__getitem__
+
+
+def equilibrium_matrix(model: ForceModel):
+    """Sparse (6 n, m) equilibrium matrix (``scipy.sparse.csr_matrix``) of the real rows and columns."""
+    import scipy.sparse as sp
+
+    m, n = model.m, model.n
+    cb, coef = model.col_brick[:m], model.col_coef[:m]
+    rows, cols, vals = [], [], []
+    for s in range(2):
+        real = cb[:, s] < n
+        c = np.nonzero(real)[0]
+        r = (6 * cb[c, s])[:, None] + np.arange(6)[None, :]
+        rows.append(r.ravel())
+        cols.append(np.repeat(c, 6))
+        vals.append(coef[c, s, :].ravel())
+    A = sp.coo_matrix(
+        (np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(6 * n, m)
+    )
+    return A.tocsr()
+
+
+#: HiGHS methods of scipy.optimize.linprog that solve_exact accepts.
+EXACT_METHODS = ("highs", "highs-ds", "highs-ipm")
+
+
+def solve_exact(model: ForceModel, method: str = "highs", scale: bool = True) -> ExactResult:
+    """Solve the Eq. 9 LP exactly with HiGHS ``method`` ("highs": HiGHS
+    chooses, in practice dual simplex; "highs-ds"; "highs-ipm": interior
+    point with crossover, much faster on layouts of hundreds of bricks).
+
+    ``scale`` (default on): write the torque rows in N stud instead of N m (the same LP,
+    better conditioned: in N m they are ~100x smaller than the force rows,
+    near HiGHS' tolerances, and on layouts of hundreds of bricks HiGHS then
+    stops with "Status 0: Not Set" or stalls).
+
+    When the first solve returns no solution, the LP is solved again scaled
+    with "highs-ipm"; ``status`` then says so. Every answer is an optimal
+    vertex; on a degenerate LP different settings may return different
+    optimal vertices (same objective, different per-brick scores).
+    """
+    if method not in EXACT_METHODS:
+        raise ValueError(f"method must be one of {EXACT_METHODS}, got {method!r}")
+    res = _solve_lp(model, method, scale)
+    if res.status != 0 and (method, scale) != ("highs-ipm", True):
+        first = res.message
+        res = _solve_lp(model, "highs-ipm", True)
+        res.message = f"{res.message} (scaled highs-ipm after {method}: {first})"
+    f = np.zeros(model.m_pad)
+    if res.x is not None:
+        f[:model.m] = res.x[:model.m]
+    return ExactResult(f=f, objective=float(res.fun) if res.fun is not None else float("nan"),
+                       status=res.message, success=bool(res.status == 0))
+
+
+def _solve_lp(model: ForceModel, method: str, scale: bool):
+    import scipy.sparse as sp
+    from scipy.optimize import linprog
+
+    p = model.params
+    m, n = model.m, model.n
+    kind = model.col_kind[:m]
+    # scale: torque rows in N stud instead of N m (row i times rs_i and its
+    # residual cost divided by rs_i: the same LP, better conditioned)
+    ts = 1.0 / p.stud if scale else 1.0
+    rs = np.tile(np.array([1.0, 1.0, 1.0, ts, ts, ts]), n)
+    A = sp.diags(rs) @ equilibrium_matrix(model)
+    normal = np.nonzero(kind == NORMAL)[0]
+    k = len(normal)
+    owner = model.col_brick[normal, 0]
+    g = model.gravity[:n].reshape(-1) * rs
+    I6 = sp.identity(6 * n, format="csr")
+    # equality: A f - r+ + r- = -g
+    A_eq = sp.hstack([A, sp.csr_matrix((6 * n, k)), -I6, I6, sp.csr_matrix((6 * n, n))]).tocsr()
+    b_eq = -g
+    # -n_p - D_p <= 0 ; D_p - t_owner <= 0
+    sel = sp.csr_matrix((np.ones(k), (np.arange(k), normal)), shape=(k, m))
+    Ik = sp.identity(k, format="csr")
+    own = sp.csr_matrix((np.ones(k), (np.arange(k), owner)), shape=(k, n))
+    Z6 = sp.csr_matrix((k, 6 * n))
+    A_ub = sp.vstack(
+        [
+            sp.hstack([-sel, -Ik, Z6, Z6, sp.csr_matrix((k, n))]),
+            sp.hstack([sp.csr_matrix((k, m)), Ik, Z6, Z6, -own]),
+        ]
+    ).tocsr()
+    b_ub = np.zeros(2 * k)
+    c = np.concatenate([np.zeros(m), np.full(k, p.beta), np.tile(1.0 / rs, 2), np.full(n, p.alpha)])
+    lo = np.where(kind == SIDE, 0.0, -np.inf)
+    bounds = np.concatenate(
+        [np.stack([lo, np.full(m, np.inf)], 1), np.tile([0.0, np.inf], (k + 12 * n + n, 1))]
+    )
+    return linprog(c, A_ub=A_ub, b_ub=b_ub, A_eq=A_eq, b_eq=b_eq, bounds=bounds, method=method)

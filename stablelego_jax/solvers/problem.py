@@ -1,0 +1,303 @@
+"""What every JAX solver shares: the problem and solution pytrees, the one
+size ladder, padding and solve plans, and the scaled equilibrium operators.
+
+Units inside the solvers: forces in units of the friction capacity T,
+torque rows in T x stud pitch (so force and torque rows have one size).
+"""
+from __future__ import annotations
+
+import dataclasses
+from typing import NamedTuple, Sequence
+
+import jax.numpy as jnp
+import numpy as np
+
+from ..model import KNOB, SIDE, ForceModel, Params
+from ..soft import SoftProblem
+
+__all__ = [
+    "Problem",
+    "Solution",
+    "to_problem",
+    "stack_problems",
+    "rung",
+    "bucket_shape",
+    "pad_to_bucket",
+    "pad_soft",
+    "stack_soft",
+    "layer_plan",
+    "layer_bucket",
+    "to_layered",
+    "layered_problem",
+    "solve_plan",
+    "plan_problem",
+    "row_scale",
+    "operators",
+    "make_solution",
+]
+
+
+class Problem(NamedTuple):
+    """Array-only pytree of one compiled model (see ForceModel for shapes)."""
+
+    col_brick: jnp.ndarray  # (m, 2) int32, n = sink
+    col_coef: jnp.ndarray  # (m, 2, 6) float
+    col_kind: jnp.ndarray  # (m,) int8
+    col_mask: jnp.ndarray  # (m,) bool
+    group: jnp.ndarray  # (n, P) int32, m = empty
+    gravity: jnp.ndarray  # (n, 6)
+    brick_mask: jnp.ndarray  # (n,) bool
+    layers: jnp.ndarray | None = None  # (L,): bricks numbered layer by layer (ipm only)
+
+
+class Solution(NamedTuple):
+    """Solver output for one layout (add a batch axis under vmap).
+
+    f: (m,) forces in N; iters; converged (bool); primal_res, dual_res
+    (scaled, inf-norm); objective (Eq. 9 value, N-based units); dual_bound;
+    gap: (objective - dual_bound) / max(1e-12, |objective|) scaled-unit
+    relative gap.
+    """
+
+    f: jnp.ndarray
+    iters: jnp.ndarray
+    converged: jnp.ndarray
+    primal_res: jnp.ndarray
+    dual_res: jnp.ndarray
+    objective: jnp.ndarray
+    dual_bound: jnp.ndarray
+    gap: jnp.ndarray
+
+
+def to_problem(model: ForceModel) -> Problem:
+    """The arrays of a compiled (and padded) model as a :class:`Problem`."""
+    return Problem(
+        col_brick=np.asarray(model.col_brick, np.int32),
+        col_coef=np.asarray(model.col_coef, np.float64),
+        col_kind=np.asarray(model.col_kind, np.int8),
+        col_mask=np.asarray(model.col_mask, bool),
+        group=np.asarray(model.group, np.int32),
+        gravity=np.asarray(model.gravity, np.float64),
+        brick_mask=np.asarray(model.brick_mask, bool),
+    )
+
+
+def stack_problems(problems) -> Problem:
+    """Stack equally padded problems along a new leading batch axis."""
+    return Problem(*[None if a[0] is None else np.stack(a) for a in zip(*problems)])
+
+
+# ------------------------------------------------------------ the size ladder
+#
+# Every padded dimension is chosen here: bricks, columns and contact slots per
+# brick (dense problems, soft problems), and layers and slots per layer
+# (layered problems), so that similar layouts share one compiled solver.
+
+
+def rung(k: int, base: int = 8, growth: float = 1.25) -> int:
+    """The padded size of ``k`` bricks, columns or contact slots: the
+    smallest value >= k of the ladder ``base``, then x ``growth`` rounded up
+    to a multiple of 8 (8, 16, 24, 32, 40, 56, 72, 96, 120, 152, ... from
+    base 8; 64, 80, 104, 136, 176, 224, ... from base 64)."""
+    b = int(base)
+    while b < k:
+        b = int(np.ceil(b * growth / 8.0) * 8)
+    return b
+
+
+#: Smallest padded sizes (ladder bases) of bricks, columns and contact slots per brick.
+MIN_BRICKS, MIN_COLUMNS, MIN_SLOTS = 8, 64, 4
+
+#: Padded layers and slots per layer of layered problems: finer than :func:`rung`
+#: at small sizes, where a layered factorisation costs ~ layers x slots^3.
+LAYER_RUNGS = (2, 4, 6, 8, 12, 16, 20, 24, 32, 40, 48, 64)
+SLOT_RUNGS = (1, 2, 4, 6, 8, 12, 16, 20, 24, 32, 40, 48, 56, 64, 80, 96, 128)
+
+
+def bucket_shape(n: int, m: int, p: int) -> tuple[int, int, int]:
+    """Padded (bricks, columns, contact slots per brick) on the ladder."""
+    return rung(n, MIN_BRICKS), rung(m, MIN_COLUMNS), rung(p, MIN_SLOTS)
+
+
+def pad_to_bucket(model: ForceModel) -> ForceModel:
+    """Pad a model to the ladder so similar sizes share one compile."""
+    return model.pad(*bucket_shape(model.n, model.m, model.group.shape[1]))
+
+
+# ------------------------------------------------------------- soft problems
+
+
+def pad_soft(prob: SoftProblem, n_pad: int | None = None, m_pad: int | None = None,
+             p_pad: int | None = None) -> SoftProblem:
+    """Pad to (n_pad bricks, m_pad columns, p_pad points per group); default
+    the ladder (:func:`bucket_shape`), so similar sizes share a compiled
+    solver. Padding bricks have no columns and no mass; padding
+    columns are inert (zero wrench, masked)."""
+    n, m = prob.mass.shape[0], prob.col_kind.shape[0]
+    P = prob.group.shape[1]
+    nb, mb, pb = bucket_shape(n, m, P)
+    n_pad = nb if n_pad is None else n_pad
+    m_pad = mb if m_pad is None else m_pad
+    p_pad = pb if p_pad is None else p_pad
+    if n_pad < n or m_pad < m or p_pad < P:
+        raise ValueError(f"cannot pad (n={n}, m={m}, P={P}) to ({n_pad}, {m_pad}, {p_pad})")
+    dm, dn = m_pad - m, n_pad - n
+    cb = np.where(np.asarray(prob.col_brick) >= n, n_pad, prob.col_brick)
+    cb = np.concatenate([cb, np.full((dm, 2), n_pad)]).astype(np.int32)
+    grp = np.full((n_pad, p_pad), m_pad, np.int32)
+    g = np.asarray(prob.group)
+    grp[:n, :P] = np.where(g >= m, m_pad, g)
+    return SoftProblem(
+        col_brick=cb,
+        col_coef=np.concatenate([prob.col_coef, np.zeros((dm, 2, 6))]),
+        col_kind=np.concatenate([prob.col_kind, np.full(dm, KNOB, np.int8)]),
+        col_mask=np.concatenate([prob.col_mask, np.zeros(dm, bool)]),
+        group=grp,
+        mass=np.concatenate([prob.mass, np.zeros(dn)]),
+        brick_mask=np.concatenate([prob.brick_mask, np.zeros(dn, bool)]),
+        unit=np.concatenate([prob.unit, np.arange(n, n_pad)]).astype(np.int32),
+    )
+
+
+def stack_soft(problems: Sequence[SoftProblem]) -> SoftProblem:
+    """Stack equally padded problems along a new leading (batch) axis."""
+    return SoftProblem(*[np.stack(a) for a in zip(*problems)])
+
+
+# ---------------------------------------------------------------- layering
+
+
+def layer_plan(model: ForceModel) -> tuple[int, int]:
+    """(layers, largest bricks per layer) of a compiled model's real bricks."""
+    if model.layer is None:
+        return 1, model.n
+    z = np.asarray(model.layer[: model.n])
+    if z.size == 0:
+        return 1, 1
+    counts = np.bincount(z - z.min())
+    return int(len(counts)), int(counts.max())
+
+
+def layer_bucket(L: int, B: int) -> tuple[int, int]:
+    """Padded (layers, slots per layer): the next of :data:`LAYER_RUNGS` and
+    :data:`SLOT_RUNGS`; beyond them, the next multiple of 16."""
+
+    def up(k, rungs):
+        return next((r for r in rungs if r >= k), -(-k // 16) * 16)
+
+    return up(L, LAYER_RUNGS), up(B, SLOT_RUNGS)
+
+
+def to_layered(model: ForceModel, L: int, B: int) -> ForceModel:
+    """The model with bricks renumbered layer by layer: brick ``l B + s`` is
+    slot ``s`` of layer ``l`` (``n_pad = L B``; empty slots are padding
+    bricks). Columns keep their order, so forces solved on the result are
+    forces of ``model`` (same ``m_pad``)."""
+    n = model.n
+    z = np.asarray(model.layer[:n]) - (model.layer[:n].min() if n else 0)
+    counts = np.bincount(z, minlength=1)
+    if len(counts) > L or counts.max(initial=0) > B:
+        raise ValueError(f"layout needs {len(counts)} x {counts.max()} layer slots, got {L} x {B}")
+    order = np.argsort(z, kind="stable")
+    rank = np.empty(n, np.int64)
+    rank[order] = np.arange(n) - np.repeat(np.cumsum(counts) - counts, counts)
+    new = z * B + rank  # new index of old brick i
+    n_new = L * B
+    remap = np.full(model.n_pad + 1, n_new, np.int64)  # padding bricks / sink -> sink
+    remap[:n] = new
+    cb = remap[np.minimum(model.col_brick, model.n_pad)]
+    grav = np.zeros((n_new, 6))
+    grav[new] = model.gravity[:n]
+    group = np.full((n_new, model.group.shape[1]), model.m_pad, np.int32)
+    group[new] = model.group[:n]
+    bm = np.zeros(n_new, bool)
+    bm[new] = True
+    lay = np.full(n_new, -1, np.int32)
+    lay[new] = z
+    return dataclasses.replace(
+        model, col_brick=cb.astype(np.int32), gravity=grav, group=group, brick_mask=bm, layer=lay
+    )
+
+
+def layered_problem(model: ForceModel, L: int) -> Problem:
+    """Problem arrays of an (already layered, ``n_pad = L B``) model; the
+    ``layers`` field (shape (L,)) carries the layer count through jit."""
+    return to_problem(model)._replace(layers=np.zeros(L, np.int8))
+
+
+#: Layouts of at most this many (padded) bricks are always solved dense.
+DENSE_MAX = 48
+
+
+def solve_plan(model: ForceModel) -> tuple:
+    """Bucket key of ``model``: ("dense", n_pad) or ("layered", L_pad, B_pad),
+    whichever factorises more cheaply (the block-tridiagonal form costs
+    ~3 L (6 B)^3 flops, the dense one (6 n)^3 / 3); layouts of up to
+    ``DENSE_MAX`` bricks stay dense (one small factor beats a scan over layers)."""
+    n_b = rung(model.n, MIN_BRICKS)
+    Lp, Bp = layer_bucket(*layer_plan(model))
+    if n_b > DENSE_MAX and Lp > 1 and 3 * Lp * Bp ** 3 < n_b ** 3 / 3:
+        return ("layered", Lp, Bp)
+    return ("dense", n_b)
+
+
+def plan_problem(model: ForceModel, key: tuple, m_pad: int, p_pad: int) -> tuple[ForceModel, Problem]:
+    """(model to score the forces on, Problem to solve) for bucket ``key`` with
+    ``m_pad`` columns and ``p_pad`` contact slots: the scoring model keeps the
+    input brick order; the Problem is numbered layer by layer when layered."""
+    if key[0] == "layered":
+        fm = model.pad(model.n, m_pad, p_pad)
+        return fm, layered_problem(to_layered(fm, key[1], key[2]), key[1])
+    fm = model.pad(key[1], m_pad, p_pad)
+    return fm, layered_problem(fm, 1)
+
+
+# --------------------------------------------------------------- operators
+
+
+def row_scale(params: Params):
+    """Row scaling: forces / T, torques / (T * stud); weights of the scaled L1."""
+    s = jnp.array([1.0, 1.0, 1.0, 1.0 / params.stud, 1.0 / params.stud, 1.0 / params.stud])
+    w = jnp.array([1.0, 1.0, 1.0, params.stud, params.stud, params.stud])
+    return s / params.T, w
+
+
+def operators(prob: Problem, params: Params):
+    """The equilibrium operator in scaled units: (A, A', coef, g, w).
+
+    A: (m,) forces in T -> (n, 6) scaled wrench per brick; A': its
+    transpose; coef: (m, 2, 6) scaled wrench per unit force; g: (n, 6)
+    scaled gravity; w: (n, 6) weights of the scaled L1 residual (0 on
+    padding bricks). The one implementation of ``A f`` for every solver.
+    """
+    s6, w6 = (a.astype(prob.col_coef.dtype) for a in row_scale(params))
+    coef = prob.col_coef * s6 * params.T  # unit force in units of T
+    cb = prob.col_brick
+    n = prob.gravity.shape[0]
+
+    def A(x):
+        out = jnp.zeros((n + 1, 6), x.dtype)
+        out = out.at[cb[:, 0]].add(coef[:, 0] * x[:, None])
+        out = out.at[cb[:, 1]].add(coef[:, 1] * x[:, None])
+        return out[:n]
+
+    def At(y):
+        yp = jnp.concatenate([y, jnp.zeros((1, 6), y.dtype)])
+        return (coef[:, 0] * yp[cb[:, 0]]).sum(-1) + (coef[:, 1] * yp[cb[:, 1]]).sum(-1)
+
+    g = prob.gravity * s6
+    w = jnp.where(prob.brick_mask[:, None], w6, 0.0) * jnp.ones_like(g)
+    return A, At, coef, g, w
+
+
+def make_solution(prob: Problem, params: Params, x, iters, converged, pr, dr, obj, dual, gap) -> Solution:
+    """A Solution from scaled forces ``x`` (in T) and scaled diagnostics:
+    side presses clipped to >= 0, padding columns zeroed, forces and
+    objective back in N."""
+    x = jnp.where(prob.col_kind == SIDE, jnp.maximum(x, 0.0), x)
+    x = jnp.where(prob.col_mask, x, 0.0)
+    T = params.T
+    return Solution(
+        f=(x * T).astype(jnp.float64), iters=iters, converged=converged, primal_res=pr, dual_res=dr,
+        objective=obj * T, dual_bound=dual * T, gap=gap,
+    )

@@ -1,0 +1,551 @@
+"""The barrier interior point of soft problems and its implicit adjoint.
+
+The point of the *central path* of the paper's Eq. 9 linear programme at
+barrier parameter ``mu``, for a :class:`~stablelego_jax.soft.SoftProblem`
+with existence weights and extra loads (see :mod:`stablelego_jax.loss` for
+the problem, its units and what its gradient means). It is solved by an
+infeasible primal-dual interior-point method (Mehrotra predictor-corrector;
+at most ``iters`` iterations of a ``while_loop`` that stops once the
+iterate is centred at ``mu``) in which each Newton system is reduced, per
+column and in closed form, to one dense LU factorisation of a (7 n x 7 n)
+system (n bricks): the changes of the residual rows' prices and of the
+bricks' drag maxima. The optimality conditions are written per unit of
+existence (divided by the weights), which keeps them regular at ``w = 0``.
+
+:func:`central_path` has a custom VJP (implicit differentiation): one
+transposed Newton system ``J^T lam = dL/dx`` at the solution (J: the
+Jacobian of the barrier problem's optimality conditions R), returning
+``-(dR/dtheta)^T lam`` for theta = (weights, loads). Nothing is unrolled.
+``jit`` and ``vmap`` work; float64 is switched on inside (forward and
+backward), whatever the caller's JAX setting.
+"""
+from __future__ import annotations
+
+import dataclasses
+import functools
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+
+from ..model import KNOB, NORMAL, Params
+from ..runtime import x64
+from ..soft import SoftProblem
+
+__all__ = [
+    "BarrierOptions",
+    "SoftContext",
+    "soft_context",
+    "column_force",
+    "brick_residual",
+    "central_path",
+]
+
+
+@dataclasses.dataclass(frozen=True)
+class BarrierOptions:
+    """Settings of the barrier interior point (hashable: a static jit argument).
+
+    mu: barrier parameter at which forces are returned and differentiated
+      (-> 0 gives Eq. 9's LP).
+    iters: most interior-point iterations (a ``while_loop``: it stops once
+      mean(s z / w) <= 1.5 mu and every s z / w is within a factor
+      ``centred`` of mu; under ``vmap`` when every problem has stopped).
+    knob_cost: gamma, the cost (per T) of knob presses.
+    compliance: eps, the compliance of the contacts of partly existing
+      bricks (their cost ``eps (1 - w) / 2 (S^2 + D^2)`` per unit of
+      existence); 0 at w = 1. It keeps the forces a faded-in brick carries
+      proportional to its weight: with Eq. 9's linear costs alone, a brick
+      of any positive weight standing on the baseplate could carry any load
+      (the loss would jump at w = 0+).
+    tol: convergence tolerance on the optimality conditions (inf-norm,
+      scaled units) for ``converged``.
+    params: physical parameters (T, alpha, beta, ...).
+    """
+
+    mu: float = 1e-5
+    iters: int = 30
+    centred: float = 0.01
+    knob_cost: float = 1e-6
+    compliance: float = 1e-2
+    tol: float = 1e-5
+    params: Params = Params()
+
+
+class SoftContext(NamedTuple):
+    """Weight-dependent constants of one problem (all JAX arrays)."""
+
+    coef: jnp.ndarray  # (m, 2, 6) scaled wrench per unit force
+    coef_t: jnp.ndarray  # (m, 2, 6) the same times the other-brick weight of each slot
+    cb: jnp.ndarray  # (m, 2)
+    g: jnp.ndarray  # (n, 6) scaled weight (with loads) per unit of existence
+    om: jnp.ndarray  # (n,) brick weights (0 for padding)
+    o0: jnp.ndarray  # (m,) weight of the slot-1 brick seen from slot 0 (1 within a unit)
+    wcol: jnp.ndarray  # (m,) column weight
+    real: jnp.ndarray  # (m,) bool real columns
+    pair: jnp.ndarray  # (m,) bool real columns with two parts S - D (NORMAL, KNOB)
+    normal: jnp.ndarray  # (m,) bool real NORMAL columns
+    knob: jnp.ndarray  # (m,) bool real KNOB columns
+    owner: jnp.ndarray  # (m,) brick whose bottom a NORMAL column is on (n: none)
+    group: jnp.ndarray  # (n, P)
+    cost: jnp.ndarray  # (n, 6) L1 weights of the scaled rows
+
+
+def soft_context(weights, loads, prob: SoftProblem, params: Params) -> SoftContext:
+    dtype = jnp.float64
+    n = prob.mass.shape[0]
+    s = 1.0 / params.stud
+    row = jnp.asarray([1.0, 1.0, 1.0, s, s, s], dtype)
+    cost = jnp.asarray([1.0, 1.0, 1.0, params.stud, params.stud, params.stud], dtype) * jnp.ones((n, 6), dtype)
+    w_eff = jnp.asarray(weights, dtype)[prob.unit]
+    om = jnp.where(prob.brick_mask, w_eff, 0.0)
+    om_ext = jnp.concatenate([om, jnp.ones((1,), dtype)])
+    unit_ext = jnp.concatenate([jnp.asarray(prob.unit, jnp.int32), jnp.full((1,), -1, jnp.int32)])
+    cb = jnp.asarray(prob.col_brick)
+    b0, b1 = cb[:, 0], cb[:, 1]
+    same = unit_ext[b0] == unit_ext[b1]
+    w0, w1 = om_ext[b0], om_ext[b1]
+    o0 = jnp.where(same, 1.0, w1)
+    o1 = jnp.where(same, 1.0, w0)
+    real = jnp.asarray(prob.col_mask)
+    coef = jnp.asarray(prob.col_coef, dtype) * row
+    coef_t = coef * jnp.stack([o0, o1], axis=1)[:, :, None]
+    load = jnp.zeros((n,), dtype) if loads is None else jnp.asarray(loads, dtype)
+    gz = -(jnp.asarray(prob.mass, dtype) + load) * params.g / params.T
+    g = jnp.zeros((n, 6), dtype).at[:, 2].set(jnp.where(prob.brick_mask, gz, 0.0))
+    kind = jnp.asarray(prob.col_kind)
+    normal = (kind == NORMAL) & real
+    knob = (kind == KNOB) & real
+    return SoftContext(coef=coef, coef_t=coef_t, cb=cb, g=g, om=om, o0=o0, wcol=jnp.where(real, w0 * o0, 0.0),
+                real=real, pair=normal | knob, normal=normal, knob=knob, owner=jnp.where(normal, b0, n),
+                group=jnp.asarray(prob.group), cost=cost)
+
+
+def _apply(coef, cb, x, n):
+    """sum over columns of coef[:, s] x -> (n, 6) (slot bricks ``n`` dropped)."""
+    out = jnp.zeros((n + 1, 6), x.dtype)
+    out = out.at[cb[:, 0]].add(coef[:, 0] * x[:, None])
+    out = out.at[cb[:, 1]].add(coef[:, 1] * x[:, None])
+    return out[:n]
+
+
+def _apply_t(coef, cb, y):
+    """transpose of :func:`_apply`: (n, 6) -> (m,)."""
+    yp = jnp.concatenate([y, jnp.zeros((1, 6), y.dtype)])
+    return (coef[:, 0] * yp[cb[:, 0]]).sum(-1) + (coef[:, 1] * yp[cb[:, 1]]).sum(-1)
+
+
+def _owner_sum(ctx: SoftContext, vals, n):
+    return jax.ops.segment_sum(vals, ctx.owner, num_segments=n + 1)[:n]
+
+
+def _ext(v):
+    return jnp.concatenate([v, jnp.zeros((1,), v.dtype)])
+
+
+def column_force(x, ctx: SoftContext):
+    S, D, _ = x
+    return jnp.where(ctx.pair, S - D, S)
+
+
+def brick_residual(ctx: SoftContext, phi):
+    return _apply(ctx.coef_t, ctx.cb, phi, ctx.g.shape[0]) + ctx.g
+
+
+# --------------------------------------------------------------------------
+# inequalities: kinds 0: D >= 0 (pairs), 1: S >= 0 (real columns),
+# 2: t_owner - o D >= 0 (NORMAL), 3: t >= 0 (bricks); then the residual
+# rows' pairs a: r >= 0, b: r - rho >= 0 (r = r+, r - rho = r-)
+
+
+def _masks(ctx: SoftContext):
+    n = ctx.g.shape[0]
+    ones = jnp.ones((n,), bool)
+    rows = jnp.ones((n, 6), bool)
+    return (ctx.pair, ctx.real, ctx.normal, ones, rows, rows)
+
+
+def _weights(ctx: SoftContext, params: Params):
+    """Barrier weight of each kind: the cost scale of its dual (alpha for the
+    force parts and drag maxima, the row's cost c for the residual pairs),
+    so that all complementarity products are of one size."""
+    a = params.alpha
+    return (a, a, a, a, ctx.cost, ctx.cost)
+
+
+def _slacks(x, ctx: SoftContext):
+    S, D, t = x
+    return D, S, _ext(t)[ctx.owner] - ctx.o0 * D, t
+
+
+def _msk(v, on, fill=0.0):
+    return jnp.where(on, v, fill)
+
+
+class _Pieces(NamedTuple):
+    """Newton system pieces: diagonal curvatures, couplings, the residual rows'
+    curvature ``ddpsi`` and the right-hand side."""
+
+    hS: jnp.ndarray  # (m,)
+    hD: jnp.ndarray  # (m,) h0 + o^2 h2 (pairs), 1 otherwise
+    h0: jnp.ndarray  # (m,) curvature of D >= 0 alone (pairs)
+    f: jnp.ndarray  # (m,) dR_D / dt_owner
+    g: jnp.ndarray  # (m,) dR_t / dD
+    h2o: jnp.ndarray  # (m,) o h2 (t's own curvature from column p)
+    h3: jnp.ndarray  # (n,)
+    ddpsi: jnp.ndarray  # (n, 6)
+
+
+def _compliance(ctx: SoftContext, opts: BarrierOptions):
+    """Per column: compliance * (1 - w_p), the curvature of the cost
+    ``eps (1 - w_p) / 2 (S^2 + D^2)`` (per unit of existence) of the contacts
+    of partly existing bricks; 0 for fully present ones (exact Eq. 9)."""
+    return jnp.where(ctx.real, opts.compliance * (1.0 - ctx.wcol), 0.0)
+
+
+def _system(x, ctx: SoftContext, dpsi, ddpsi, zeta, h, opts: BarrierOptions):
+    """Right-hand side R (divided by the weights) and the Jacobian pieces.
+
+    ``dpsi`` (n, 6): derivative of the residual rows' cost w.r.t. rho (their
+    price); ``ddpsi``: its curvature; ``zeta``/``h`` per kind: the barrier
+    multipliers and curvatures of kinds 0-3.
+
+        R_S = A^T dpsi + gamma[knob] - zeta1 + e S
+        R_D = -A^T dpsi + beta[normal] + gamma[knob] - zeta0 + o zeta2 + e D
+
+    with e the compliance of partly existing bricks' contacts.
+        R_t = alpha - zeta3 - sum_owner o zeta2
+    """
+    p = opts.params
+    S, D, t = x
+    n = ctx.g.shape[0]
+    z0, z1, z2, z3 = (_msk(v, on) for v, on in zip(zeta, _masks(ctx)[:4]))
+    h0, h1, h2, h3 = (_msk(v, on) for v, on in zip(h, _masks(ctx)[:4]))
+    o = ctx.o0
+    atp = _apply_t(ctx.coef, ctx.cb, dpsi)
+    kc = jnp.where(ctx.knob, opts.knob_cost, 0.0)
+    ec = _compliance(ctx, opts)
+    rS = jnp.where(ctx.real, atp + kc - z1 + ec * S, S)
+    rD = jnp.where(ctx.pair, -atp + jnp.where(ctx.normal, p.beta, 0.0) + kc - z0 + o * z2 + ec * D, D)
+    rt = p.alpha - z3 - _owner_sum(ctx, o * z2, n)
+    pieces = _Pieces(
+        hS=jnp.where(ctx.real, h1 + ec, 1.0),
+        hD=jnp.where(ctx.pair, h0 + o * o * h2 + ec, 1.0),
+        h0=h0 + ec,
+        f=-o * h2,
+        g=-o * o * h2,
+        h2o=o * h2,
+        h3=h3,
+        ddpsi=ddpsi,
+    )
+    return (rS, rD, rt), pieces
+
+
+# --------------------------------------------------------------------------
+# linear algebra
+
+
+class _Lin(NamedTuple):
+    """A factorised Newton matrix (or its transpose)."""
+
+    pc: _Pieces
+    lu: jnp.ndarray  # LU of the (7 n) system in (y, t)
+    piv: jnp.ndarray
+    transpose: bool
+
+
+def _fg(pc: _Pieces, transpose: bool):
+    return (pc.g, pc.f) if transpose else (pc.f, pc.g)
+
+
+def _factor(ctx: SoftContext, pc: _Pieces, transpose: bool = False) -> _Lin:
+    """Factor the Newton matrix (or its transpose).
+
+    Unknowns: per column (S_p, D_p) (diagonal blocks), per brick t_b, and
+    y = diag(ddpsi) A~ dphi (the change of the residual rows' prices).
+    Eliminating S and D per column leaves one dense LU of the (6 n + n)
+    system in (y, t):
+
+        [ diag(1/ddpsi) + A~ diag(theta) A^T    -A~ diag(f / hD) ] [y]
+        [ diag(g / hD) A                          diag(ktt)       ] [t]
+
+    with theta = 1/hS + [pair]/hD and ktt = tt - sum g f / hD written without
+    cancellation. The transpose swaps f and g and A and A~.
+    """
+    f, g = _fg(pc, transpose)
+    n = ctx.g.shape[0]
+    theta = 1.0 / pc.hS + jnp.where(ctx.pair, 1.0 / pc.hD, 0.0)
+    theta = jnp.where(ctx.real, theta, 0.0)
+    ktt = pc.h3 + _owner_sum(ctx, jnp.where(ctx.normal, pc.h2o * pc.h0 / pc.hD, 0.0), n)
+    m = pc.hS.shape[0]
+    left, right = (ctx.coef, ctx.coef_t) if transpose else (ctx.coef_t, ctx.coef)
+    idx = (ctx.cb[:, :, None] * 6 + jnp.arange(6)[None, None, :]).reshape(m, 12)
+    al = left.reshape(m, 12)
+    ar = right.reshape(m, 12)
+    N = 6 * (n + 1)
+    K = jnp.zeros((N, N), theta.dtype)
+    K = K.at[idx[:, :, None], idx[:, None, :]].add(al[:, :, None] * (theta[:, None, None] * ar[:, None, :]))
+    Kyt = jnp.zeros((N, n + 1), theta.dtype).at[idx, ctx.owner[:, None]].add(al * (f / pc.hD)[:, None])
+    Kty = jnp.zeros((n + 1, N), theta.dtype).at[ctx.owner[:, None], idx].add(ar * (g / pc.hD)[:, None])
+    top = jnp.concatenate([K[: 6 * n, : 6 * n] + jnp.diag(1.0 / pc.ddpsi.reshape(-1)), -Kyt[: 6 * n, :n]], axis=1)
+    bot = jnp.concatenate([Kty[:n, : 6 * n], jnp.diag(ktt)], axis=1)
+    lu, piv = jax.scipy.linalg.lu_factor(jnp.concatenate([top, bot], axis=0))
+    return _Lin(pc=pc, lu=lu, piv=piv, transpose=transpose)
+
+
+def _solve(ctx: SoftContext, lin: _Lin, r):
+    """Solve J d = r (J^T d = r for a transposed factorisation), r = (r_S, r_D, r_t).
+
+    Returns (d, y, d2): d = (dS, dD, dt), y the residual-price part, d2 =
+    dt_owner - o dD (the change of the t - o D slack) computed without
+    cancellation."""
+    pc = lin.pc
+    f, g = _fg(pc, lin.transpose)
+    rS, rD, rt = r
+    n = rt.shape[0]
+    left, right = (ctx.coef, ctx.coef_t) if lin.transpose else (ctx.coef_t, ctx.coef)
+    u = jnp.where(ctx.real, rS / pc.hS, 0.0) - jnp.where(ctx.pair, rD / pc.hD, 0.0)
+    ry = _apply(left, ctx.cb, u, n).reshape(-1)
+    rtt = rt - _owner_sum(ctx, jnp.where(ctx.pair, g * rD / pc.hD, 0.0), n)
+    sol = jax.scipy.linalg.lu_solve((lin.lu, lin.piv), jnp.concatenate([ry, rtt]))
+    y, dt = sol[: 6 * n].reshape(n, 6), sol[6 * n:]
+    aty = _apply_t(right, ctx.cb, y)
+    dte = _ext(dt)[ctx.owner]
+    dS = jnp.where(ctx.real, (rS - aty) / pc.hS, rS)
+    qD = rD + aty
+    dD = jnp.where(ctx.pair, (qD - f * dte) / pc.hD, rD)
+    d2 = dte * pc.h0 / pc.hD - ctx.o0 * qD / pc.hD  # = dt_owner - o dD for NORMAL columns
+    return (dS, dD, dt), y, d2
+
+
+# --------------------------------------------------------------------------
+# the interior-point method
+
+
+def _ratio(v, dv, on):
+    """Largest step keeping v + step dv > 0 over ``on`` (inf if none)."""
+    lim = jnp.where(dv < 0, -v / jnp.where(dv < 0, dv, -1.0), jnp.inf)
+    return jnp.where(on, lim, jnp.inf).min()
+
+
+def _axpy(t, d, x):
+    return jax.tree_util.tree_map(lambda a, b: a + t * b, x, d)
+
+
+def _start(ctx: SoftContext, wts):
+    n = ctx.g.shape[0]
+    dtype = ctx.g.dtype
+    S = jnp.where(ctx.real, 1.0, 0.0).astype(dtype)
+    D = jnp.where(ctx.pair, 1.0, 0.0).astype(dtype)
+    x = (S, D, jnp.full((n,), 2.0, dtype))
+    rho = brick_residual(ctx, column_force(x, ctx))
+    r = 1.0 + jnp.maximum(rho, 0.0)
+    s = tuple(jnp.ones_like(v) for v in _slacks(x, ctx)) + (r, r - rho)
+    z = tuple(jnp.ones_like(v) * w for v, w in zip(s, wts))
+    return x, r, s, z
+
+
+def _ipm(ctx: SoftContext, opts: BarrierOptions):
+    """Infeasible primal-dual interior point (Mehrotra predictor-corrector)
+    with slack variables s and duals z per inequality (only s, z > 0 is
+    kept: fraction 0.99 to the boundary, no line search).
+
+    The barrier of inequality kind k is weighted by w_k (:func:`_weights`);
+    each iteration targets ``tau = max(mu, sigma mean(s z / w))``; once
+    ``tau = mu`` the steps are pure centring steps towards the point of the
+    central path at ``mu``, which is returned (with the residual rows' price
+    and curvature there, for the backward pass, and the optimality residual)."""
+    dtype = ctx.g.dtype
+    n = ctx.g.shape[0]
+    ons = _masks(ctx)
+    wts = _weights(ctx, opts.params)
+    n_pairs = sum(jnp.sum(o) for o in ons)
+    cost = ctx.cost
+
+    def mean_gap(s, z):
+        return sum(_msk(sv * zv / w, o).sum() for sv, zv, o, w in zip(s, z, ons, wts)) / n_pairs
+
+    def pieces(x, r, s, z, target):
+        rho = brick_residual(ctx, column_force(x, ctx))
+        shat = tuple(_slacks(x, ctx)) + (r, r - rho)
+        rp = tuple(_msk(sv - sh, o) for sv, sh, o in zip(s, shat, ons))  # primal residuals
+        h = tuple(zv / sv for zv, sv in zip(z, s))
+        zeta = tuple(tg / sv + hv * rv for sv, hv, rv, tg in zip(s, h, rp, target))
+        # eliminate r: R_r = 2c - zeta_a - zeta_b, J_rr = h_a + h_b, J_r,rho = -h_b
+        R_r = 2.0 * cost - zeta[4] - zeta[5]
+        jrr = h[4] + h[5]
+        dpsi = -cost + zeta[5] + h[5] * R_r / jrr
+        ddpsi = h[4] * h[5] / jrr
+        rr, pc = _system(x, ctx, dpsi, ddpsi, zeta[:4], h[:4], opts)
+        return rp, h, R_r, dpsi, rr, pc
+
+    def direction(x, r, s, z, target, lin):
+        rp, h, _, dpsi, rr, _ = pieces(x, r, s, z, target)
+        (dS, dD, dt), y, d2 = _solve(ctx, lin, rr)
+        dx = (-dS, -dD, -dt)
+        # the residual rows' duals from y (the backward-stable part of the
+        # solve): their dual equations hold to rounding, and the rounding
+        # goes to the primal equation r - rho = s_b (absolute, tiny)
+        dzb = (dpsi - y) + cost - z[5]
+        dza = 2.0 * cost - z[4] - z[5] - dzb
+        drho = -_apply(ctx.coef_t, ctx.cb, column_force((dS, dD, dt), ctx), n)
+        comp = lambda k, dzk: (target[k] - s[k] * z[k] - s[k] * dzk) / z[k]  # noqa: E731
+        zcomp = lambda k, dsk: (target[k] - s[k] * z[k] - z[k] * dsk) / s[k]  # noqa: E731
+        # each pair's step goes through its active side(s) (h = z/s > 1): a
+        # slack step from complementarity divides by z, exact only where z is
+        # not tiny; the inactive side follows from the primal equations
+        act_a, act_b = h[4] > 1.0, h[5] > 1.0
+        dsa1, dsb1 = comp(4, dza), comp(5, dzb)
+        dr_a = dsa1 + rp[4]  # through a
+        dr_b = dsb1 + drho + rp[5]  # through b
+        use_b = act_b & ~act_a
+        dr = jnp.where(use_b, dr_b, dr_a)
+        dsa = jnp.where(use_b, dr - rp[4], dsa1)
+        dsb = jnp.where(act_b, dsb1, dr - drho - rp[5])
+        dza = jnp.where(use_b, zcomp(4, dsa), dza)
+        dzb = jnp.where(act_b, dzb, zcomp(5, dsb))
+        dshat = (dx[1], dx[0], -d2, dx[2])
+        ds = [_msk(dv - rv, o) for dv, rv, o in zip(dshat, rp[:4], ons[:4])]
+        dz = [_msk(zcomp(k, ds[k]), ons[k]) for k in range(4)]
+        ds = tuple(_msk(v, on) for v, on in zip(ds, ons[:4])) + (dsa, dsb)
+        dz = tuple(_msk(v, on) for v, on in zip(dz, ons[:4])) + (dza, dzb)
+        step = jnp.asarray(1.0, dtype)
+        for sv, dsv, zv, dzv, o in zip(s, ds, z, dz, ons):
+            step = jnp.minimum(step, jnp.minimum(_ratio(sv, dsv, o), _ratio(zv, dzv, o)))
+        return dx, dr, ds, dz, step
+
+    def primal(state):
+        x, r, s, _ = state
+        shat = tuple(_slacks(x, ctx)) + (r, r - brick_residual(ctx, column_force(x, ctx)))
+        return jnp.max(jnp.stack([jnp.abs(_msk(sv - sh, o)).max() for sv, sh, o in zip(s, shat, ons)]))
+
+    def centrality(s, z, tau):
+        return jnp.max(jnp.stack([jnp.abs(_msk(sv * zv / (w * tau) - 1.0, o)).max()
+                                  for sv, zv, o, w in zip(s, z, ons, wts)]))
+
+    def body(carry):
+        state, done, it = carry
+        new = step_once(state)
+        # stop once centred on the final barrier parameter: further centring
+        # steps only stir rounding errors around
+        x, r, s, z = new
+        mu_now = mean_gap(s, z)
+        ok = (mu_now <= 1.5 * opts.mu) & (centrality(s, z, opts.mu) <= opts.centred)
+        # guard: near the end a step that loses primal feasibility (rounding
+        # in a near-singular system) is refused and the iterate kept
+        bad = (primal(new) > jnp.maximum(1e-6, 10.0 * primal(state))) & (mean_gap(*state[2:]) < 1e-3)
+        out = jax.tree_util.tree_map(lambda a, b: jnp.where(done | bad, a, b), state, new)
+        return out, done | ok | bad, it + 1
+
+    def step_once(state):
+        x, r, s, z = state
+        mu = mean_gap(s, z)
+        # one factorisation per iteration (the matrix does not depend on the target)
+        _, _, _, _, _, pc = pieces(x, r, s, z, wts)
+        lin = _factor(ctx, pc)
+        # predictor (affine scaling, target 0), then corrector (centring
+        # towards tau plus the second-order term; pure centring once the target
+        # is the final mu): one traced direction in a scan of length 2
+        def phase(target, _):
+            out = direction(x, r, s, z, target, lin)
+            _, _, ds_a, dz_a, st_a = out
+            st_a = jnp.minimum(st_a, 1.0)
+            mu_a = mean_gap(_axpy(st_a, ds_a, s), _axpy(st_a, dz_a, z))
+            sigma = jnp.clip((mu_a / mu) ** 3, 0.0, 1.0)
+            tau = jnp.maximum(opts.mu, sigma * mu)
+            final = tau <= opts.mu
+            nxt = tuple(tau * w - jnp.where(final, 0.0, _msk(dsv * dzv, o))
+                        for w, dsv, dzv, o in zip(wts, ds_a, dz_a, ons))
+            return nxt, out
+
+        zero = tuple(jnp.zeros_like(v) for v in s)
+        _, outs = jax.lax.scan(phase, zero, None, length=2)
+        dx, dr, ds, dz, step = jax.tree_util.tree_map(lambda a: a[1], outs)
+        step = jnp.minimum(1.0, 0.99 * step)
+        # safeguard: a step that multiplies the complementarity gap (rounding
+        # in a near-singular system, e.g. contacts between absent bricks) is
+        # shortened, by 4x at a time, until the gap at most doubles
+        def grows(st):
+            return mean_gap(_axpy(st, ds, s), _axpy(st, dz, z)) > 2.0 * jnp.maximum(mu, opts.mu)
+        for _ in range(6):
+            step = jnp.where(grows(step), 0.25 * step, step)
+        return _axpy(step, dx, x), r + step * dr, _axpy(step, ds, s), _axpy(step, dz, z)
+
+    (x, r, s, z), _, _ = jax.lax.while_loop(lambda c: (~c[1]) & (c[2] < opts.iters), body,
+                                            (_start(ctx, wts), jnp.asarray(False), jnp.asarray(0)))
+    # optimality residuals with the actual duals: stationarity (z in place of
+    # the barrier multipliers), primal feasibility, centrality; and the
+    # residual rows' price and curvature for the backward pass
+    rp, h, _, _, _, pc = pieces(x, r, s, z, tuple(sv * zv for sv, zv in zip(s, z)))
+    stat, _ = _system(x, ctx, -cost + z[5], pc.ddpsi, z[:4], h[:4], opts)
+    stat = tuple(jnp.where(on, v, 0.0) for v, on in zip(stat, (ctx.real, ctx.pair, jnp.ones((n,), bool))))
+    res = jnp.max(jnp.stack([jnp.abs(v).max() for v in stat] + [jnp.abs(v).max() for v in rp]
+                            + [jnp.abs(2.0 * cost - z[4] - z[5]).max()]))
+    res = jnp.where(centrality(s, z, opts.mu) <= 0.5, res, jnp.maximum(res, 1.0))
+    return x, (-cost + z[5], pc.ddpsi, res)
+
+
+# --------------------------------------------------------------------------
+# implicit differentiation
+
+
+@functools.partial(jax.custom_vjp, nondiff_argnums=(3,))
+@x64
+def central_path(weights, loads, prob, opts):
+    """(x, aux): the solution x = (S, D, t) (S, D: (m,) the two parts of each
+    column's force per unit of existence, in T; t: (n,) each brick's
+    largest-drag variable, in T) and, not differentiable, aux = (dpsi,
+    ddpsi, res) (residual rows' price and curvature, optimality residual)."""
+    return _ipm(soft_context(weights, loads, prob, opts.params), opts)
+
+
+@x64
+def _x_fwd(weights, loads, prob, opts):
+    out = central_path(weights, loads, prob, opts)
+    return out, (out, weights, loads, prob)
+
+
+def _barrier_system(x, ctx: SoftContext, ctx0: SoftContext, dpsi, ddpsi, opts: BarrierOptions):
+    """Optimality conditions R of the barrier problem at ``opts.mu`` (all
+    barrier multipliers ``mu w / slack``), with the residual rows' price
+    linearised around the solution: exact value and first derivatives at the
+    solution (where ``ctx == ctx0``; ``ctx0=None``: the price frozen). (Their
+    closed form, sqrt-type in rho, is too sensitive to rounding at small mu
+    to evaluate directly.)"""
+    mu = opts.mu
+    wts = _weights(ctx, opts.params)[:4]
+    sl = [_msk(v, on, 1.0) for v, on in zip(_slacks(x, ctx), _masks(ctx)[:4])]
+    dp = dpsi if ctx0 is None else dpsi + ddpsi * (brick_residual(ctx, column_force(x, ctx)) - brick_residual(ctx0, column_force(x, ctx0)))
+    return _system(x, ctx, dp, ddpsi, [mu * w / v for v, w in zip(sl, wts)],
+                   [mu * w / (v * v) for v, w in zip(sl, wts)], opts)
+
+
+@x64
+def _x_bwd(opts, res, ct):
+    """R(x*(theta), theta) = 0, so theta_bar = -(dR/dtheta)^T J^-T x_bar.
+
+    R depends on theta through the residual rows (rho) and through the
+    other-brick weights in the drag-maximum constraints. The rho part of
+    lam^T dR/dtheta is ``y^T drho/dtheta`` with ``y = ddpsi A lam_phi`` taken
+    from the backward-stable part of the transposed solve (forming it from
+    lam_phi would amplify rounding by the huge curvatures of a near-LP)."""
+    (x, (dpsi, ddpsi, _)), weights, loads, prob = res
+    ctx0 = soft_context(weights, loads, prob, opts.params)
+    _, pc = _barrier_system(x, ctx0, ctx0, dpsi, ddpsi, opts)
+    lam, y, _ = _solve(ctx0, _factor(ctx0, pc, transpose=True), ct[0])
+
+    def rfun(w, l):  # R with the residual rows' price frozen
+        return _barrier_system(x, soft_context(w, l, prob, opts.params), None, dpsi, ddpsi, opts)[0]
+
+    def rhofun(w, l):
+        ctx = soft_context(w, l, prob, opts.params)
+        return brick_residual(ctx, column_force(x, ctx))
+
+    _, vjp = jax.vjp(rfun, weights, loads)
+    gw, gl = vjp(jax.tree_util.tree_map(jnp.negative, lam))
+    _, vjp_rho = jax.vjp(rhofun, weights, loads)
+    gw2, gl2 = vjp_rho(-y)
+    return gw + gw2, gl + gl2, None
+
+
+central_path.defvjp(_x_fwd, _x_bwd)

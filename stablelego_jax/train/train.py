@@ -1,0 +1,561 @@
+"""Train the generator with shape fidelity + lambda * stability loss.
+
+    stablelego train [--config CONFIG] [--out DIR] [--resume] [--seed S] [--lam L] [--steps N]
+
+Loss per shape (B shapes per step, averaged):
+
+* fidelity: the sum over target cells of (coverage - 1)^2, times
+  ``under_weight`` where coverage < 1 (a cell left out costs more than a
+  cell claimed twice on the way from one brick to another); coverage = the
+  sum of the probabilities of the placements covering the cell; plus
+  ``brick_weight`` * the sum of p over placements (a cost per brick, so
+  fewer, larger bricks tile the shape more cheaply than 1x1s); plus ``bin_weight`` * the sum of p (1 - p) over placements
+  (pushes probabilities to 0 or 1; its weight ramps up over the run);
+* stability: :func:`stablelego_jax.loss.stability_loss` of the soft layout
+  over a subset of the placements, with existence weights = the generator's
+  probabilities turned into shares of contested cells
+  (:func:`stablelego_jax.train.net.existence_weights`): the placements decoded now plus the strongest competing
+  ones (and a few random placements that reach from a supported cell over
+  an overhang), chosen on the host each step (not
+  differentiated), compiled with :func:`stablelego_jax.soft.compile_placements`
+  and padded to one fixed size, so one jit-compiled ``vmap`` serves every step.
+
+Checkpoints are plain ``.npz`` (params, optimizer state, step, numpy rng
+state, config, history), written atomically to ``OUT/checkpoint.npz`` every
+``checkpoint_every`` steps and at the end; ``--resume`` continues from it
+exactly (same batches, same updates).
+"""
+from __future__ import annotations
+
+import functools
+import json
+import os
+import sys
+import time
+from typing import NamedTuple
+
+import numpy as np
+
+from ..analysis import analyze_layout
+from ..blas import one_blas_thread
+from ..files import atomic_write, atomic_write_text
+from ..layout import brick_layout, cells_of
+from ..runtime import x64
+from ..soft import compile_placements
+from ..solvers.problem import pad_soft, stack_soft
+
+DEFAULTS = {
+    "grid": 20,
+    "crop": [10, 10, 6],
+    "data_seed": 0,
+    "n_procedural": 240,
+    "mesh_dir": "../shared/meshes",
+    "mesh_extent": 6,
+    "mesh_max_cells": 90,
+    "heldout_frac": 0.2,
+    "width": 16,
+    "dilations": [1, 2, 4, 1],
+    "out_bias": -2.0,
+    "seed": 0,
+    "steps": 400,
+    "batch": 8,
+    "lr": 0.01,
+    "clip": 10.0,
+    "lam": 0.0,
+    "bin_weight": 0.1,
+    "bin_weight_final": 1.0,
+    "share_floor": 0.5,
+    "share_power": 1.0,
+    "under_weight": 1.0,
+    "brick_weight": 0.0,
+    "threshold": 0.5,
+    "n_pad": 48,
+    "m_pad": 2048,
+    "p_pad": 64,
+    "c_pad": 96,
+    "subset_base": "strict",
+    "share_scope": "all",
+    "val_count": 0,
+    "grad_floor": 0.0,
+    "logit_bound": 0.0,
+    "lr_schedule": "constant",
+    "lr_final_frac": 0.05,
+    "competitors": 12,
+    "random_competitors": 4,
+    "random_pool": "span",
+    "temperature": 0.02,
+    "checkpoint_every": 50,
+    "eval_every": 50,
+    "eval_train": 32,
+    "eval_heldout": True,
+    "log_every": 10,
+}
+
+
+class ConfigError(ValueError):
+    """A bad config file (the message names the file)."""
+
+
+def load_config(path: str, **overrides) -> dict:
+    """DEFAULTS updated by the JSON object in ``path`` and ``overrides`` (None
+    values ignored). Raises ConfigError naming the file on a missing file,
+    bad JSON, an unknown key or a value of the wrong type."""
+    if not os.path.isfile(path):
+        raise ConfigError(f"{path}: config file not found")
+    try:
+        with open(path) as fh:
+            user = json.load(fh)
+    except (OSError, ValueError) as exc:
+        raise ConfigError(f"{path}: cannot read config: {exc}") from None
+    if not isinstance(user, dict):
+        raise ConfigError(f"{path}: config must be a JSON object")
+    cfg = dict(DEFAULTS)
+    for k, v in list(user.items()) + [(k, v) for k, v in overrides.items() if v is not None]:
+        if k not in DEFAULTS:
+            raise ConfigError(f"{path}: unknown config key {k!r} (known: {', '.join(sorted(DEFAULTS))})")
+        d = DEFAULTS[k]
+        ok = (v is None and k == "mesh_dir") or (
+            isinstance(v, bool) if isinstance(d, bool) else
+            isinstance(v, (int, float)) and not isinstance(v, bool) if isinstance(d, float) else
+            isinstance(v, int) and not isinstance(v, bool) if isinstance(d, int) else
+            isinstance(v, type(d)))
+        if not ok:
+            raise ConfigError(f"{path}: config key {k!r} must be {type(d).__name__}, got {v!r}")
+        cfg[k] = float(v) if isinstance(d, float) else v
+    for k in ("steps", "batch", "n_pad", "m_pad", "p_pad", "c_pad", "checkpoint_every", "eval_every", "log_every"):
+        if cfg[k] < 1:
+            raise ConfigError(f"{path}: config key {k!r} must be >= 1, got {cfg[k]}")
+    if not (isinstance(cfg["crop"], list) and len(cfg["crop"]) == 3 and all(
+            isinstance(c, int) and 8 <= c <= cfg["grid"] for c in cfg["crop"][:2]) and 1 <= cfg["crop"][2] <= cfg["grid"]):
+        raise ConfigError(f"{path}: crop must be [cx, cy, cz] with 8 <= cx, cy <= grid and 1 <= cz <= grid")
+    for k, allowed in (("subset_base", ("strict", "filled")), ("share_scope", ("all", "subset")),
+                       ("random_pool", ("span", "valid")),
+                        ("lr_schedule", ("constant", "cosine"))):
+        if cfg[k] not in allowed:
+            raise ConfigError(f"{path}: config key {k!r} must be one of {', '.join(allowed)}, got {cfg[k]!r}")
+    if cfg["lam"] < 0 or not 0 < cfg["threshold"] <= 1:
+        raise ConfigError(f"{path}: need lam >= 0 and 0 < threshold <= 1")
+    if not 0 < cfg["share_power"] <= 1:
+        raise ConfigError(f"{path}: need 0 < share_power <= 1, got {cfg['share_power']}")
+    if cfg["mesh_dir"] is not None and not os.path.isabs(cfg["mesh_dir"]):
+        cfg["mesh_dir"] = os.path.abspath(cfg["mesh_dir"])  # relative to the working folder
+    if cfg["mesh_dir"] is not None and not os.path.isdir(cfg["mesh_dir"]):
+        raise ConfigError(f"{path}: mesh_dir {cfg['mesh_dir']} is not a folder")
+    return cfg
+
+
+# --------------------------------------------------------------------------
+# data
+
+
+@functools.lru_cache(maxsize=4)
+def _dataset(n_procedural, mesh_dir, seed, heldout_frac, grid, mesh_extent, mesh_max_cells):
+    from .shapes import build_dataset
+
+    return build_dataset(n_procedural, mesh_dir, seed, heldout_frac, grid, mesh_extent, mesh_max_cells)
+
+
+def dataset(cfg: dict, validation: bool = False):
+    """(train, heldout) shapes of a config (deterministic in its data keys).
+
+    ``validation``: (train, validation, heldout) instead, with ``val_count``
+    training objects (chosen by ``data_seed``) moved out of the training
+    shapes into a validation set for tuning; training always runs on the
+    train part of this three-way split."""
+    tr, he, _ = _dataset(cfg["n_procedural"], cfg["mesh_dir"], cfg["data_seed"], cfg["heldout_frac"],
+                         cfg["grid"], cfg["mesh_extent"], cfg["mesh_max_cells"])
+    val_idx = set(np.random.default_rng(cfg["data_seed"] + 2).permutation(len(tr))[: cfg["val_count"]].tolist())
+    train = [s for i, s in enumerate(tr) if i not in val_idx]
+    val = [s for i, s in enumerate(tr) if i in val_idx]
+    return (train, val, he) if validation else (train, he)
+
+
+def config_diff(stored: dict, cfg: dict, ignore=()) -> list[str]:
+    """The keys of ``cfg`` (sorted) whose value in ``stored`` differs, except ``ignore``."""
+    return sorted(k for k in cfg if k not in ignore and stored.get(k) != cfg[k])
+
+
+def split_shapes(cfg: dict, split: str):
+    """The shapes of one split of :func:`dataset` (``validation=True``): one
+    of :data:`~stablelego_jax.train.shapes.SPLITS`."""
+    train, val, held = dataset(cfg, validation=True)
+    return {"heldout": held, "val": val, "train": train}[split]
+
+
+class Arrays:
+    """Per-shape network inputs on the crop around each shape (see
+    :func:`stablelego_jax.train.net.apply`): features (S, cx, cy, cz, 4) float32, valid
+    (S, cx, cy, cz, K) bool, target (S, cx, cy, cz) bool, offset (S, 3) of
+    the crop in the (G, G, G) grid."""
+
+    def __init__(self, shapes, crop_size, grid=20):
+        from .net import crop, features, spanning_placements, valid_placements
+
+        crops = []
+        for s in shapes:
+            try:
+                crops.append(crop(s.vox, crop_size))
+            except ValueError as exc:
+                raise ConfigError(f"shape {s.name}: {exc}") from None
+        self.names = [s.name for s in shapes]
+        self.target = np.stack([c[0] for c in crops]) if crops else np.zeros((0, *crop_size), bool)
+        self.offset = np.stack([c[1] for c in crops]) if crops else np.zeros((0, 3), np.int64)
+        self.x = np.stack([features(t, grid) for t in self.target]) if crops else None
+        self.valid = np.stack([valid_placements(t) for t in self.target]) if crops else None
+        self.span = np.stack([spanning_placements(t) for t in self.target]) if crops else None
+
+
+# --------------------------------------------------------------------------
+# the stability subset (host side)
+
+
+class Subset(NamedTuple):
+    """One shape's stability subset (or a batch of them, stacked):
+    fi (n_pad,) flat placement indices into (X, Y, Z, K), mask (n_pad,) real
+    slots, inc (c_pad, n_pad) float 0/1 cell incidence (which of the
+    subset's cells each placement covers), prob the padded SoftProblem."""
+
+    fi: np.ndarray
+    mask: np.ndarray
+    inc: np.ndarray
+    prob: object
+
+
+def select_subset(p: np.ndarray, valid: np.ndarray, cfg: dict, rng: np.random.Generator, span=None) -> Subset:
+    """Placements of one shape for the stability term and their padded problem.
+
+    p, valid, span: (X, Y, Z, K). Takes the decoded placements (lowest
+    layers first; the strict decoding, or the filled one when
+    ``subset_base`` is "filled", so every cell of the shape is in the
+    problem), then the ``competitors`` most probable others, then
+    ``random_competitors`` random ones among the ``span`` placements (those
+    that reach from a supported cell into an overhang; all valid ones when
+    None or when ``random_pool`` is "valid"), and drops from the end until the compiled problem fits
+    (n_pad, m_pad, p_pad, c_pad), keeping at least the competitors' share free.
+    """
+    from .net import MASS, TYPES, decode
+
+    idx, _, _ = decode(p, cfg["threshold"], cfg["subset_base"] == "filled", valid)
+    idx = idx[np.argsort(idx[:, 2], kind="stable")]
+    dec = np.ravel_multi_index(tuple(idx.T), p.shape) if len(idx) else np.zeros(0, np.int64)
+    n_comp = cfg["competitors"] + cfg["random_competitors"]
+    dec = dec[: max(cfg["n_pad"] - n_comp, 1)]
+    flat_p = p.ravel()
+    vflat = np.nonzero(valid.ravel())[0]
+    others = np.setdiff1d(vflat, dec)
+    top = others[np.argsort(-flat_p[others], kind="stable")[: cfg["competitors"]]]
+    pool = np.nonzero((valid if span is None or cfg["random_pool"] == "valid" else span).ravel())[0]
+    rest = np.setdiff1d(pool, np.concatenate([dec, top]))
+    rnd = rng.choice(rest, size=min(cfg["random_competitors"], len(rest)), replace=False) if len(rest) else rest
+    chosen = np.concatenate([dec, top, rnd]).astype(np.int64)[: cfg["n_pad"]]
+    while True:
+        x, y, z, k = np.unravel_index(chosen, p.shape)
+        size = np.asarray(TYPES, np.int64)[k]
+        pos = np.stack([x, y, z], 1)
+        cells, owner = cells_of(pos, size)
+        ucells, cell_id = np.unique(cells, axis=0, return_inverse=True)
+        prob = compile_placements(pos, size, MASS[k])
+        if (prob.col_kind.shape[0] <= cfg["m_pad"] and prob.group.shape[1] <= cfg["p_pad"]
+                and len(ucells) <= cfg["c_pad"]):
+            break
+        chosen = chosen[: max(len(chosen) - 4, 1)]
+    n = len(chosen)
+    fi = np.zeros(cfg["n_pad"], np.int64)
+    fi[:n] = chosen
+    mask = np.zeros(cfg["n_pad"], bool)
+    mask[:n] = True
+    inc = np.zeros((cfg["c_pad"], cfg["n_pad"]))
+    inc[np.ravel(cell_id), owner] = 1.0
+    return Subset(fi, mask, inc, pad_soft(prob, cfg["n_pad"], cfg["m_pad"], cfg["p_pad"]))
+
+
+def batch_subsets(p: np.ndarray, valid: np.ndarray, cfg: dict, rng: np.random.Generator, span=None) -> Subset:
+    """:func:`select_subset` of each shape of a batch (p, valid, span:
+    (B, X, Y, Z, K)), stacked into one Subset of (B, ...) arrays."""
+
+    sub = [select_subset(p[j], valid[j], cfg, rng, None if span is None else span[j]) for j in range(len(p))]
+    return Subset(*(np.stack([getattr(s, f) for s in sub]) for f in ("fi", "mask", "inc")),
+                  stack_soft([s.prob for s in sub]))
+
+
+# --------------------------------------------------------------------------
+# loss and step (jit)
+
+
+def bin_weight(cfg: dict, step: int) -> float:
+    """Weight of the binarization term at ``step``: linear from ``bin_weight``
+    to ``bin_weight_final`` over the run (probabilities settle to 0/1 late,
+    after the stability term has had its say on which bricks)."""
+    return cfg["bin_weight"] + (cfg["bin_weight_final"] - cfg["bin_weight"]) * step / max(cfg["steps"], 1)
+
+
+def make_fns(cfg: dict):
+    """(probs_fn, step_fn, opt, terms, grad_fn): jit-compiled forward pass
+    and training step, the optimizer, the loss terms (fidelity, binarize,
+    stability, converged fraction) and ``grad_fn(params, lam, bw, *batch)``
+    -> (loss, terms, grads); cached per config (one compilation per config
+    and process)."""
+    return _make_fns(json.dumps(cfg, sort_keys=True))
+
+
+@functools.lru_cache(maxsize=8)
+def _make_fns(key: str):
+    cfg = json.loads(key)
+    import jax
+    import jax.numpy as jnp
+
+    try:
+        import optax
+    except ImportError:
+        raise ConfigError("training needs optax: pip install 'stablelego-jax[train]'") from None
+
+    from ..loss import LossOptions, soft_report
+    from . import net
+
+    dil = tuple(cfg["dilations"])
+    opts = LossOptions(temperature=cfg["temperature"])
+    lr = cfg["lr"] if cfg["lr_schedule"] == "constant" else optax.cosine_decay_schedule(
+        cfg["lr"], max(cfg["steps"], 1), alpha=cfg["lr_final_frac"])
+    opt = optax.chain(optax.clip_by_global_norm(cfg["clip"]), optax.adam(lr))
+
+    @jax.jit
+    def probs_fn(params, x, valid):
+        return net.probabilities(params, x, valid, dil, cfg["logit_bound"])
+
+    def terms(params, x, valid, target, fi, mask, inc, prob):
+        logits = net.logits(params, x, dil, cfg["logit_bound"])
+        p = jnp.where(valid, jax.nn.sigmoid(logits), 0.0)  # = net.probabilities, sharing the logits
+        if cfg["grad_floor"] > 0:
+            # the same values, with d p / d logit = p (1 - p) + grad_floor in the
+            # fidelity and stability terms: a saturated placement can still be moved
+            p_g = p + cfg["grad_floor"] * jnp.where(valid, logits - jax.lax.stop_gradient(logits), 0.0)
+        else:
+            p_g = p
+        B = p.shape[0]
+        cov = net.coverage(p_g)
+        err = jnp.where(cov < 1.0, cfg["under_weight"], 1.0) * (cov - 1.0) ** 2
+        fid = jnp.where(target, err, 0.0).reshape(B, -1).sum(1).mean()
+        if cfg["brick_weight"] > 0:  # economy: each placement's probability costs brick_weight
+            fid = fid + cfg["brick_weight"] * p_g.reshape(B, -1).sum(1).mean()
+        binar = (p * (1.0 - p)).reshape(B, -1).sum(1).mean()
+        if cfg["share_scope"] == "subset":
+            ps = jnp.take_along_axis(p_g.reshape(B, -1), fi, axis=1) * mask
+            w = net.subset_shares(ps, inc, cfg["share_floor"], cfg["share_power"])
+        else:
+            wts = net.existence_weights(p_g, cov, cfg["share_floor"])
+            w = jnp.take_along_axis(wts.reshape(B, -1), fi, axis=1) * mask
+        rep = jax.vmap(lambda wi, pi: soft_report(wi, None, pi, opts=opts))(w, prob)
+        # a problem whose interior-point solve did not converge contributes nothing
+        stab = jnp.where(rep.converged, rep.brick_loss.sum(1), 0.0).mean()
+        return fid, binar, stab, rep.converged.mean()
+
+    def total(params, lam, bw, *args):
+        fid, binar, stab, conv = terms(params, *args)
+        return fid + bw * binar + lam * stab, (fid, binar, stab, conv)
+
+    @jax.jit
+    def grad_fn(params, lam, bw, *args):
+        (loss, aux), g = jax.value_and_grad(total, has_aux=True)(params, lam, bw, *args)
+        return loss, aux, g
+
+    @jax.jit
+    def update_fn(params, opt_state, g):
+        upd, opt_state = opt.update(g, opt_state, params)
+        return optax.apply_updates(params, upd), opt_state
+
+    def step_fn(params, opt_state, lam, bw, x, valid, target, sub: Subset):
+        loss, aux, g = grad_fn(params, lam, bw, x, valid, target, *sub)
+        params, opt_state = update_fn(params, opt_state, g)
+        return params, opt_state, loss, aux
+
+    return probs_fn, step_fn, opt, terms, grad_fn
+
+
+# --------------------------------------------------------------------------
+# checkpoints
+
+
+@x64
+def initial_params(cfg: dict, seed: int | None = None):
+    """The generator's parameters at initialisation for ``cfg`` (its
+    ``seed`` unless given)."""
+    import jax
+
+    from . import net
+
+    key = jax.random.PRNGKey(cfg["seed"] if seed is None else seed)
+    return net.init_params(key, cfg["width"], tuple(cfg["dilations"]), cfg["out_bias"])
+
+
+def _leaves(tree):
+    import jax
+
+    return [np.asarray(a) for a in jax.tree_util.tree_leaves(tree)]
+
+
+def save_checkpoint(path: str, params, opt_state, step: int, rng: np.random.Generator, cfg: dict,
+                    history: list) -> None:
+    """Write ``path`` atomically (temp file, then rename): plain npz arrays."""
+    arrs = {f"param_{i}": a for i, a in enumerate(_leaves(params))}
+    arrs.update({f"opt_{i}": a for i, a in enumerate(_leaves(opt_state))})
+    arrs["step"] = np.asarray(step)
+    arrs["rng_state"] = np.asarray(json.dumps(rng.bit_generator.state))
+    arrs["config"] = np.asarray(json.dumps(cfg))
+    arrs["history"] = np.asarray(json.dumps(history))
+    atomic_write(path, lambda fh: np.savez(fh, **arrs), binary=True)
+
+
+@x64
+def load_checkpoint(path: str, cfg: dict | None = None):
+    """(params, opt_state, step, rng, cfg, history) from ``path`` (cfg: the
+    stored config unless given)."""
+    import jax
+    import jax.numpy as jnp
+
+    with np.load(path, allow_pickle=False) as z:
+        data = {k: z[k] for k in z.files}
+    stored = dict(DEFAULTS, **json.loads(str(data["config"])))
+    cfg = stored if cfg is None else cfg
+    params0 = initial_params(cfg, 0)  # only the tree structure is used
+    opt = make_fns(cfg)[2]
+    opt0 = opt.init(params0)
+    tdef_p = jax.tree_util.tree_structure(params0)
+    tdef_o = jax.tree_util.tree_structure(opt0)
+    np_ = tdef_p.num_leaves
+    params = jax.tree_util.tree_unflatten(tdef_p, [jnp.asarray(data[f"param_{i}"]) for i in range(np_)])
+    opt_state = jax.tree_util.tree_unflatten(
+        tdef_o, [jnp.asarray(data[f"opt_{i}"]) for i in range(tdef_o.num_leaves)])
+    rng = np.random.default_rng()
+    rng.bit_generator.state = json.loads(str(data["rng_state"]))
+    return params, opt_state, int(data["step"]), rng, stored, json.loads(str(data["history"]))
+
+
+# --------------------------------------------------------------------------
+# exact evaluation (also used by stablelego_jax.train.evaluate)
+
+
+def layout_of(pos, size, source="<generated>"):
+    """A Layout of decoded bricks with Table I masses (None when empty)."""
+    if len(pos) == 0:
+        return None
+    return brick_layout(pos, size, source=source)
+
+
+def score_layout(layout) -> bool:
+    """Exact (HiGHS) verdict; an empty layout (nothing built) counts as not stable."""
+    if layout is None:
+        return False
+    return bool(analyze_layout(layout, solver="exact").stable)
+
+
+@x64
+def decode_and_score(params, arrays: Arrays, cfg: dict, probs_fn, chunk: int = 8, fill: bool = False):
+    """Per shape: (stable, iou, n_bricks) of the decoded layouts (``fill``:
+    see :func:`stablelego_jax.train.net.decode`)."""
+    from .net import decode, decoded_iou
+
+    out = []
+    for s in range(0, len(arrays.x), chunk):
+        p = np.asarray(probs_fn(params, arrays.x[s:s + chunk], arrays.valid[s:s + chunk]))
+        for j in range(len(p)):
+            _, pos, size = decode(p[j], cfg["threshold"], fill, arrays.valid[s + j])
+            iou = decoded_iou(arrays.target[s + j], pos, size)
+            pos = pos + arrays.offset[s + j]  # back into the (G, G, G) grid
+            out.append((score_layout(layout_of(pos, size)), iou, len(pos)))
+    return out
+
+
+# --------------------------------------------------------------------------
+# the loop
+
+
+def _line(step, total, loss, aux, rate, eta):
+    fill = int(24 * step / max(total, 1))
+    return (f"[{'#' * fill}{'.' * (24 - fill)}] {step}/{total} loss {loss:.4f} fid {aux[0]:.4f} "
+            f"bin {aux[1]:.4f} stab {aux[2]:.5f} conv {aux[3]:.2f} | {rate:.2f} steps/s eta {eta:.0f}s")
+
+
+@x64
+def train(cfg: dict, out: str, resume: bool = False, log=sys.stderr, max_steps: int | None = None):
+    """Train per ``cfg``; checkpoints in ``out``. Returns (params, history).
+    ``max_steps``: stop (with a checkpoint) after this many steps of this
+    call, for tests of resuming. Runs in float64 (the library's scope)."""
+    os.makedirs(out, exist_ok=True)
+    ckpt = os.path.join(out, "checkpoint.npz")
+    probs_fn, step_fn, opt = make_fns(cfg)[:3]
+    if resume and os.path.exists(ckpt):
+        params, opt_state, step, rng, stored, history = load_checkpoint(ckpt, cfg)
+        diff = config_diff(stored, cfg, ignore=("steps",))
+        if diff:
+            raise ConfigError(f"{ckpt}: checkpoint was trained with a different config ({', '.join(diff)})")
+        print(f"resuming from {ckpt} at step {step}", file=log)
+    else:
+        params = initial_params(cfg)
+        opt_state = opt.init(params)
+        step, rng, history = 0, np.random.default_rng(cfg["seed"]), []
+    train_shapes, val, held = dataset(cfg, validation=True)
+    tr = Arrays(train_shapes, cfg["crop"], cfg["grid"])
+    ev_val = Arrays(val, cfg["crop"], cfg["grid"])
+    ev_idx = np.random.default_rng(cfg["data_seed"] + 1).permutation(len(train_shapes))[: cfg["eval_train"]]
+    ev_tr = Arrays([train_shapes[i] for i in sorted(ev_idx)], cfg["crop"], cfg["grid"])
+    ev_he = Arrays(held, cfg["crop"], cfg["grid"]) if cfg["eval_heldout"] else None
+    lam = np.float64(cfg["lam"])
+    t0, s0 = time.perf_counter(), step
+    done = 0
+    with one_blas_thread():
+        while step < cfg["steps"] and (max_steps is None or done < max_steps):
+            b = rng.choice(len(train_shapes), size=cfg["batch"], replace=False)
+            x, valid, target = tr.x[b], tr.valid[b], tr.target[b]
+            p = np.asarray(probs_fn(params, x, valid))
+            sub = batch_subsets(p, valid, cfg, rng, tr.span[b])
+            bw = np.float64(bin_weight(cfg, step))
+            params, opt_state, loss, aux = step_fn(params, opt_state, lam, bw, x, valid, target, sub)
+            step += 1
+            done += 1
+            aux = [float(a) for a in aux]
+            el = time.perf_counter() - t0
+            rate = (step - s0) / el
+            if step % cfg["log_every"] == 0 or step == cfg["steps"]:
+                history.append({"step": step, "loss": float(loss), "fidelity": aux[0], "binarize": aux[1],
+                                "stability": aux[2], "converged": aux[3], "time_s": round(el, 2)})
+                print(_line(step, cfg["steps"], float(loss), aux, rate, (cfg["steps"] - step) / rate), file=log,
+                      flush=True)
+            if step % cfg["eval_every"] == 0 or step == cfg["steps"]:
+                rec = {"step": step, "eval": True}
+                for name, arr in (("train", ev_tr), ("val", ev_val), ("heldout", ev_he)):
+                    if arr is None or not arr.names:
+                        continue
+                    r = decode_and_score(params, arr, cfg, probs_fn)
+                    rec[f"{name}_stable"] = float(np.mean([a[0] for a in r]))
+                    rec[f"{name}_iou"] = float(np.mean([a[1] for a in r]))
+                    r = decode_and_score(params, arr, cfg, probs_fn, fill=True)
+                    rec[f"{name}_stable_filled"] = float(np.mean([a[0] for a in r]))
+                history.append(rec)
+                print(f"  eval at step {step}: " + ", ".join(f"{k} {v:.3f}" for k, v in rec.items()
+                                                          if k not in ("step", "eval")), file=log, flush=True)
+            if step % cfg["checkpoint_every"] == 0 or step == cfg["steps"] or (
+                    max_steps is not None and done == max_steps):
+                save_checkpoint(ckpt, params, opt_state, step, rng, cfg, history)
+    return params, history
+
+
+def run(config: str, out: str | None = None, resume: bool = False, seed: int | None = None,
+        lam: float | None = None, steps: int | None = None) -> int:
+    """``stablelego train``: load ``config``, train, write OUT/checkpoint.npz
+    and OUT/history.json; exit status (2: bad config, nothing written)."""
+    try:
+        cfg = load_config(config, seed=seed, lam=lam, steps=steps)
+    except ConfigError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    out = out or os.path.join("out", f"train_lam{cfg['lam']:g}_seed{cfg['seed']}")
+    t0 = time.perf_counter()
+    try:
+        _, history = train(cfg, out, resume)
+    except ConfigError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    atomic_write_text(os.path.join(out, "history.json"),
+                      json.dumps({"config": cfg, "history": history, "wall_s": time.perf_counter() - t0}, indent=1))
+    print(f"done: {out}/checkpoint.npz ({time.perf_counter() - t0:.1f} s)", file=sys.stderr)
+    return 0

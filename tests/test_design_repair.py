@@ -1,0 +1,155 @@
+"""Gradient-guided repair: the paper's repairs, constraints on what may change,
+the baselines, and the ``stablelego repair`` command."""
+import json
+import os
+
+import numpy as np
+import pytest
+
+from blas_threads import one_blas_thread  # noqa: F401  (module fixture: one BLAS thread)
+from conftest import EXAMPLES
+from stablelego_jax import load_layout
+from stablelego_jax.analysis import analyze_layout
+from stablelego_jax.cli import main
+from stablelego_jax.layout import cells_of
+from stablelego_jax.design.repair import RepairOptions, greedy_repair, propose, repair, rollback_repair
+
+REF = os.path.join(EXAMPLES, "stablelego")
+STAIR20 = os.path.join(REF, "stair_20.json")
+LEVER = os.path.join(REF, "stick_heavy.json")  # the lever with three loads (breaks at brick '2')
+
+
+def _same_bricks(before, after):
+    """Every original brick is in ``after`` with the same key and place."""
+    for i, k in enumerate(before.keys):
+        j = after.keys.index(k)
+        assert after.pos[j].tolist() == before.pos[i].tolist()
+        assert after.size[j].tolist() == before.size[i].tolist()
+        assert after.mass[j] == before.mass[i]
+
+
+def _in_bbox(layout, new_pos, new_size):
+    lo = layout.pos.min(axis=0)
+    hi = (layout.pos + np.concatenate([layout.size, np.ones((layout.n, 1), np.int64)], axis=1)).max(axis=0)
+    cells, _ = cells_of(np.asarray(new_pos), np.asarray(new_size))
+    return ((cells[:, :2] >= lo[:2]) & (cells[:, :2] < hi[:2])).all() and (cells[:, 2] < hi[2]).all()
+
+
+@pytest.mark.parametrize("path", [STAIR20, LEVER])
+def test_paper_repairs_need_one_brick(path):
+    lay = load_layout(path)
+    r = repair(lay)
+    assert not r.before.stable and r.before.weakest == "2"
+    assert r.stable and r.added == 1 and r.removed == [] and r.kept == 1.0
+    _same_bricks(lay, r.layout)
+    new = [i for i, k in enumerate(r.layout.keys) if k not in lay.keys]
+    assert len(new) == 1 and r.layout.keys[new[0]] not in lay.keys
+    # the new brick stands under brick '2', on the baseplate, inside the bounding box
+    assert r.layout.pos[new[0], 2] == 0
+    assert _in_bbox(lay, r.layout.pos[new], r.layout.size[new])
+    assert analyze_layout(r.layout, solver="exact").stable  # an independent check
+    assert r.soft_calls == 1 and r.exact_calls <= 1 + RepairOptions().verify
+
+
+def test_candidates_respect_region_and_remove():
+    lay = load_layout(STAIR20)
+    a = analyze_layout(lay, solver="exact")
+    occ = set(map(tuple, cells_of(lay.pos, lay.size)[0].tolist()))
+    columns = {(x, y) for x, y, _ in occ}
+    zmax = int(lay.pos[:, 2].max())
+    for region in ("bbox", "shape", "any"):
+        cands = propose(lay, a, RepairOptions(region=region))
+        assert cands and len(cands) <= RepairOptions().max_candidates
+        for c in cands:
+            cells = set(map(tuple, cells_of(c.pos, c.size)[0].tolist()))
+            assert not cells & occ  # never overlaps the layout
+            assert c.replaces == -1 and c.k <= RepairOptions().max_add
+            if region == "bbox":
+                assert _in_bbox(lay, c.pos, c.size)
+            if region == "shape":
+                assert all((x, y) in columns and z <= zmax for x, y, z in cells)
+    assert not any(c.kind == "replace" for c in propose(lay, a, RepairOptions()))
+    repl = [c for c in propose(lay, a, RepairOptions(allow_remove=True)) if c.kind == "replace"]
+    assert repl and all(c.replaces >= 0 and c.k == 1 for c in repl)
+    assert propose(lay, a, RepairOptions(max_add=0)) == []
+
+
+def test_baselines():
+    lay = load_layout(STAIR20)
+    g = greedy_repair(lay)
+    assert g.stable and g.added == 1 and g.soft_calls == 0
+    assert g.exact_calls > 5 * 4  # every candidate is solved
+    _same_bricks(lay, g.layout)
+    rb = rollback_repair(lay)
+    # brick '2' (the second in input order) fails: everything from it on is removed
+    assert rb.stable and rb.layout.keys == ("1",) and rb.kept == pytest.approx(1 / 20)
+    stable = load_layout(os.path.join(REF, "stair_19.json"))
+    for fn in (repair, greedy_repair, rollback_repair):
+        r = fn(stable)
+        assert r.stable and r.added == 0 and r.kept == 1.0 and r.exact_calls == 1
+
+
+def test_max_add_zero_and_option_errors():
+    lay = load_layout(STAIR20)
+    r = repair(lay, RepairOptions(max_add=0))
+    assert not r.stable and r.added == 0
+    with pytest.raises(ValueError, match="region"):
+        RepairOptions(region="sphere")
+    with pytest.raises(ValueError, match="verify"):
+        RepairOptions(verify=0)
+
+
+def test_cli_json_png(tmp_path, capsys):
+    out, png = tmp_path / "fixed.json", tmp_path / "ba.png"
+    assert main(["repair", STAIR20, "--out", str(out), "--png", str(png)]) == 0
+    text = capsys.readouterr().out
+    assert "UNSTABLE" in text and "STABLE with 1 added brick" in text and str(out) in text
+    orig = json.load(open(STAIR20))
+    fixed = json.load(open(out))
+    assert {k: fixed[k] for k in orig} == orig and len(fixed) == len(orig) + 1
+    new_key = next(k for k in fixed if k not in orig)
+    assert f"brick '{new_key}'" in text
+    assert png.stat().st_size > 1000 and open(png, "rb").read(8) == b"\x89PNG\r\n\x1a\n"
+    assert analyze_layout(load_layout(str(out)), solver="exact").stable
+    # --json
+    assert main(["repair", STAIR20, "--out", str(out), "--json"]) == 0
+    rec = json.loads(capsys.readouterr().out)
+    assert rec["stable"] and not rec["stable_before"] and len(rec["added"]) == 1 and rec["soft_calls"] == 1
+
+
+def test_cli_text_keeps_lines(tmp_path, capsys):
+    lay = load_layout(STAIR20)
+    lines = ["# stair_20 as text"] + [f"{sx}x{sy} ({x},{y},{z})" for (x, y, z), (sx, sy) in
+                                     zip(lay.pos.tolist(), lay.size.tolist())]
+    src = tmp_path / "stair.txt"
+    src.write_text("\n".join(lines) + "\n")
+    out = tmp_path / "fixed.txt"
+    assert main(["repair", str(src), "--out", str(out)]) == 0
+    text = capsys.readouterr().out
+    new = out.read_text().splitlines()
+    assert new[: len(lines)] == lines and len(new) == len(lines) + 1
+    assert f"brick '{len(lines) + 1}'" in text  # text keys are line numbers
+    fixed = load_layout(str(out))
+    _same_bricks(load_layout(str(src)), fixed)
+    assert analyze_layout(fixed, solver="exact").stable
+
+
+def test_cli_errors_and_stable_input(tmp_path, capsys):
+    out = tmp_path / "o.json"
+    assert main(["repair", str(tmp_path / "missing.json"), "--out", str(out)]) == 1
+    assert "missing.json" in capsys.readouterr().err and not out.exists()
+    bad = tmp_path / "bad.json"
+    bad.write_text('{"1": {"x": 0, "y": 0, "z": 0, "brick_id": 2}}')
+    assert main(["repair", str(bad), "--out", str(out)]) == 1
+    err = capsys.readouterr().err
+    assert "bad.json" in err and "ori" in err and not out.exists()
+    # not repairable within the budget: nothing written, non-zero exit
+    assert main(["repair", STAIR20, "--out", str(out), "--max-add", "0"]) == 1
+    assert "still UNSTABLE" in capsys.readouterr().out and not out.exists()
+    with pytest.raises(SystemExit):
+        main(["repair", STAIR20, "--out", str(out), "--max-add", "-1"])
+    capsys.readouterr()
+    # a stable input is written unchanged
+    assert main(["repair", os.path.join(REF, "stair_19.json"), "--out", str(out)]) == 0
+    assert "nothing to repair" in capsys.readouterr().out
+    assert json.load(open(out)) == json.load(open(os.path.join(REF, "stair_19.json")))

@@ -1,0 +1,134 @@
+"""float64 in a scope, and compiled solvers cached in and across processes
+(stablelego_jax.runtime, stablelego_jax.solvers.compiled)."""
+import json
+import os
+import subprocess
+import sys
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from stablelego_jax.runtime import cache_dir, float64, x64
+from stablelego_jax.solvers import compiled as C
+
+ROOT = os.path.abspath(os.path.join(os.path.dirname(__file__), ".."))
+STAIR20 = os.path.join(ROOT, "examples", "stablelego", "stair_20.json")
+
+
+def _python(code: str, env=None) -> dict:
+    """Run ``code`` in a fresh interpreter (from the repository root); it
+    prints one JSON object as its last line."""
+    r = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=600,
+                       env=dict(os.environ, PYTHONPATH=ROOT, **(env or {})))
+    assert r.returncode == 0, r.stderr[-3000:]
+    return json.loads(r.stdout.strip().splitlines()[-1])
+
+
+def test_float64_scope_is_restored():
+    assert not jax.config.jax_enable_x64  # the test process runs in float32, as a user's does
+    with float64():
+        assert jnp.zeros(2).dtype == jnp.float64
+    assert jnp.zeros(2).dtype == jnp.float32
+
+    @x64
+    def f():
+        return jnp.ones(3).dtype
+
+    assert f() == jnp.float64 and jnp.ones(3).dtype == jnp.float32
+
+
+def test_library_leaves_the_users_jax_in_float32():
+    """After import, analyze (JAX solver), a loss and its gradient taken in
+    the user's float32 program: the user's arrays are still float32, the
+    gradient comes back in the caller's precision and equals the one taken
+    in float64 (the library computed it in float64)."""
+    out = _python(f"""
+import json, jax, jax.numpy as jnp, numpy as np
+import stablelego_jax as sl
+a = sl.analyze({STAIR20!r})
+lay = sl.load_layout({STAIR20!r})
+soft = sl.compile_soft(lay, [sl.candidate_brick([(4, 21, 0, 1, 2)])])
+prob = sl.pad_soft(soft.problem)
+w = np.zeros(prob.mass.shape[0]); w[:soft.n] = soft.weights()
+g32 = jax.grad(sl.stability_loss)(jnp.asarray(w, jnp.float32), None, prob)
+with jax.enable_x64(True):
+    g64 = np.asarray(jax.grad(sl.stability_loss)(w, None, prob))
+print(json.dumps({{"stable": a.stable, "weakest": a.weakest, "converged": a.converged,
+                  "user_dtype": str(jnp.zeros(3).dtype), "x64": bool(jax.config.jax_enable_x64),
+                  "grad_dtype": str(g32.dtype), "cand": float(g32[soft.unit_index[0]]),
+                  "err": float(np.abs(np.asarray(g32, np.float64) - g64).max() / np.abs(g64).max())}}))
+""")
+    assert out["user_dtype"] == "float32" and out["x64"] is False
+    assert (out["stable"], out["weakest"], out["converged"]) == (False, "2", True)
+    assert out["grad_dtype"] == "float32" and out["cand"] < 0  # the paper's support helps
+    assert out["err"] < 1e-6  # float32 only in the returned numbers
+
+
+def test_second_process_reuses_the_compiled_solver(tmp_path):
+    """A second process neither traces nor compiles the solver again: it
+    loads the exported function and hits XLA's persistent cache."""
+    code = f"""
+import json, jax
+events = []
+jax.monitoring.register_event_listener(lambda name, **kw: events.append(name))
+import stablelego_jax as sl
+from stablelego_jax.solvers.compiled import STATS
+a = sl.analyze({STAIR20!r})
+print(json.dumps({{"stable": a.stable, "loaded": STATS.loaded, "compiles": STATS.compiles,
+                  "hits": events.count("/jax/compilation_cache/cache_hits"),
+                  "misses": events.count("/jax/compilation_cache/cache_misses")}}))
+"""
+    env = {"STABLELEGO_CACHE_DIR": str(tmp_path / "cache")}
+    first = _python(code, env)
+    second = _python(code, env)
+    assert first["stable"] is second["stable"] is False
+    assert first["loaded"] == 0 and first["misses"] >= 1
+    assert second["loaded"] == 1 and second["hits"] >= 1 and second["misses"] == 0
+    assert os.listdir(tmp_path / "cache" / "exported") and os.listdir(tmp_path / "cache" / "xla")
+
+
+def test_cache_dir_settings(monkeypatch, tmp_path):
+    monkeypatch.setenv("STABLELEGO_CACHE_DIR", str(tmp_path))
+    assert cache_dir() == str(tmp_path)
+    monkeypatch.setenv("STABLELEGO_CACHE", "0")
+    assert cache_dir() is None
+    monkeypatch.delenv("STABLELEGO_CACHE")
+    monkeypatch.delenv("STABLELEGO_CACHE_DIR")
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg"))
+    assert cache_dir() == str(tmp_path / "xdg" / "stablelego-jax")
+
+
+def test_executables_are_bounded(monkeypatch):
+    """The in-process cache holds at most its limit; the least recently used go first."""
+    monkeypatch.setenv("STABLELEGO_CACHE", "0")  # in-process only
+    C.clear()
+    C.set_limit(2)
+    try:
+        def f(x):
+            return (x * 2.0,)
+
+        exes = [C.compiled("double", f, None, (np.zeros(k),)) for k in (3, 4, 5)]
+        assert C.cache_size() == 2
+        ev = C.STATS.evicted
+        assert ev >= 1
+        np.testing.assert_allclose(np.asarray(exes[2](np.ones(5))[0]), 2.0)
+        before = C.STATS.compiles
+        C.compiled("double", f, None, (np.zeros(5),))  # still held: no compile
+        assert C.STATS.compiles == before
+        C.compiled("double", f, None, (np.zeros(3),))  # evicted: compiled again
+        assert C.STATS.compiles == before + 1
+        with pytest.raises(ValueError):
+            C.set_limit(0)
+    finally:
+        C.set_limit(32)
+        C.clear()
+
+
+def test_compiled_keeps_float64_inputs_float64(monkeypatch):
+    monkeypatch.setenv("STABLELEGO_CACHE", "0")
+    exe = C.compiled("plus-tiny", lambda x: (x + 1e-12,), None, (np.zeros(2),))
+    out = np.asarray(exe(np.zeros(2))[0])
+    assert out.dtype == np.float64 and out[0] == 1e-12  # float32 would give 9.9999998e-13
+    assert jnp.zeros(1).dtype == jnp.float32

@@ -1,0 +1,54 @@
+"""Eq. 10: the one largest-drag, equilibrium test and verdict (stablelego_jax.score),
+the same on numpy and JAX arrays."""
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from stablelego_jax.generate.procedural import stairs
+from stablelego_jax.model import NORMAL, Params, compile_layout
+from stablelego_jax.score import brick_drag, brick_scores, largest_drag, residual, residual_bad, verdict
+from stablelego_jax.solvers.exact import solve_exact
+
+
+def test_largest_drag_over_each_bricks_bottom_contacts():
+    drag = np.array([0.1, 0.5, 0.0, 0.3])
+    group = np.array([[0, 1, 4], [2, 3, 4], [4, 4, 4]])  # 4 = empty slot
+    np.testing.assert_array_equal(largest_drag(drag, group), [0.5, 0.3, 0.0])
+    with jax.enable_x64(True):
+        np.testing.assert_array_equal(np.asarray(largest_drag(jnp.asarray(drag), jnp.asarray(group))), [0.5, 0.3, 0.0])
+
+
+def test_verdict_is_eq10_with_the_drag_tolerance():
+    p = Params()
+    dmax = np.array([0.0, 0.49, p.T * (1 - 1e-7), p.T * 1.5, 0.2])
+    bad = np.array([False, False, False, False, True])
+    np.testing.assert_allclose(verdict(dmax, bad, p), [0.0, 0.49 / p.T, 1.0, 1.0, 1.0])
+    # just outside the tolerance is not failing
+    assert verdict(np.array([p.T * (1 - 1e-5)]), np.array([False]), p)[0] < 1.0
+
+
+def test_residual_bad_compares_forces_and_torques_with_their_own_tolerance():
+    p = Params()
+    r = np.zeros((3, 6))
+    r[0, 2] = 2 * p.eq_tol  # a force beyond the tolerance
+    r[1, 4] = 0.5 * p.eq_tol  # a torque of eq_tol/2 N m: beyond eq_tol * stud
+    r[2, 4] = 0.5 * p.eq_tol * p.stud  # within
+    np.testing.assert_array_equal(residual_bad(r, p), [True, True, False])
+
+
+def test_brick_scores_numpy_and_jax_agree():
+    model = compile_layout(stairs(5, load_kg=0.2))
+    f = solve_exact(model).f
+    s_np, bad_np, d_np = brick_scores(model, f)
+    with jax.enable_x64(True):
+        s_j, bad_j, d_j = jax.jit(lambda x: brick_scores(model, x))(jnp.asarray(f))
+    np.testing.assert_allclose(np.asarray(s_j), s_np, atol=1e-12)
+    np.testing.assert_array_equal(np.asarray(bad_j), bad_np)
+    np.testing.assert_allclose(np.asarray(d_j), d_np, atol=1e-12)
+    # the largest drag is the largest max(-n, 0) over the brick's own NORMAL columns
+    i = int(np.argmax(d_np))
+    cols = np.nonzero((model.col_kind == NORMAL) & (model.col_brick[:, 0] == i))[0]
+    assert d_np[i] == pytest.approx(np.maximum(-f[cols], 0).max())
+    assert brick_drag(model, f)[i] == d_np[i]
+    assert np.abs(residual(model, f)[: model.n]).max() < 1e-6  # a stable-by-equilibrium solution

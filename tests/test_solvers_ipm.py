@@ -1,0 +1,135 @@
+"""Interior-point solver: block algebra, layering, and agreement with HiGHS."""
+import json
+import os
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from conftest import SHARED_REF, needs_shared
+
+from stablelego_jax.analysis import analyze_layout, make_analysis
+from stablelego_jax.formats.reader import load_layout
+from stablelego_jax.generate.procedural import lever, stairs, tower
+from stablelego_jax.model import compile_layout
+from stablelego_jax.score import residual
+from stablelego_jax.solvers import ipm
+from stablelego_jax.solvers.exact import solve_exact
+from stablelego_jax.solvers.problem import layer_bucket, layer_plan, layered_problem, stack_problems, to_layered
+
+pytestmark = pytest.mark.usefixtures("x64")  # the tests jit the solver themselves
+
+
+def _block_tridiagonal(L, k, seed=0):
+    rng = np.random.default_rng(seed)
+    N = L * k
+    X = rng.normal(size=(N, N))
+    M = X @ X.T
+    for i in range(L):
+        for j in range(L):
+            if abs(i - j) > 1:
+                M[i * k:(i + 1) * k, j * k:(j + 1) * k] = 0.0
+    M += N * np.eye(N)  # diagonally dominant after the cut: still SPD
+    D = np.stack([M[l * k:(l + 1) * k, l * k:(l + 1) * k] for l in range(L)])
+    E = np.stack([M[(l + 1) * k:(l + 2) * k, l * k:(l + 1) * k] if l < L - 1 else np.zeros((k, k))
+                  for l in range(L)])
+    return M, D, E
+
+
+@pytest.mark.parametrize("L,k", [(1, 5), (4, 3), (7, 6)])
+def test_block_cholesky_solves_the_block_tridiagonal_system(L, k):
+    M, D, E = _block_tridiagonal(L, k)
+    C, G = ipm.block_cholesky(jnp.asarray(D), jnp.asarray(E))
+    r = np.random.default_rng(1).normal(size=L * k)
+    x = ipm.block_solve(C, G, jnp.asarray(r).reshape(L, k)).reshape(-1)
+    np.testing.assert_allclose(np.asarray(x), np.linalg.solve(M, r), rtol=1e-10, atol=1e-12)
+
+
+def test_layered_numbering_keeps_the_physics():
+    """Renumbering bricks layer by layer moves rows, never columns: the same
+    forces give the same per-brick residuals."""
+    lay = stairs(6)
+    m = compile_layout(lay)
+    L, B = layer_plan(m)
+    assert (L, B) == (6, 1)
+    lm = to_layered(m, 8, 2)
+    assert lm.n_pad == 16 and lm.m_pad == m.m_pad
+    f = np.random.default_rng(0).normal(size=m.m_pad)
+    r0 = residual(m, f)[: m.n]
+    r1 = residual(lm, f)
+    z = np.asarray(m.layer[: m.n]) - m.layer[: m.n].min()
+    order = np.argsort(z, kind="stable")
+    slot = np.empty(m.n, int)
+    slot[order] = np.arange(m.n) - np.searchsorted(np.sort(z), np.sort(z))
+    np.testing.assert_allclose(r1[z * 2 + slot], r0, atol=1e-12)
+    assert not lm.brick_mask[[z * 2 + 1]].any()  # empty slots are padding
+    with pytest.raises(ValueError, match="layer slots"):
+        to_layered(m, 4, 1)
+
+
+def _check_against_exact(lay, sol, model):
+    ex = solve_exact(compile_layout(lay))
+    a = make_analysis(lay, model, np.asarray(sol.f), "jax", bool(sol.converged), 0.0)
+    b = make_analysis(lay, compile_layout(lay), ex.f, "exact", True, 0.0)
+    assert bool(sol.converged)
+    assert float(sol.objective) == pytest.approx(ex.objective, rel=1e-6, abs=1e-9)
+    assert a.stable == b.stable
+    return a, b
+
+
+@pytest.mark.parametrize("make", [lambda: stairs(8), lambda: tower(5), lambda: lever(4, 2, 3)])
+def test_dense_and_layered_agree_with_highs(make):
+    lay = make()
+    m = compile_layout(lay)
+    f = jax.jit(ipm.solve)
+    dense = f(layered_problem(m, 1))
+    a, b = _check_against_exact(lay, dense, m)
+    L, B = layer_plan(m)
+    lm = to_layered(m, *layer_bucket(L, B))
+    lay_sol = f(layered_problem(lm, layer_bucket(L, B)[0]))
+    _check_against_exact(lay, lay_sol, m)
+    assert float(lay_sol.objective) == pytest.approx(float(dense.objective), rel=1e-6, abs=1e-9)
+
+
+def test_vmap_batch_equals_single_solves():
+    lays = [stairs(4), tower(4), lever(3, 1, 2)]
+    models = [compile_layout(l).pad(16, 512, 32) for l in lays]
+    probs = [layered_problem(m, 1) for m in models]
+    batch = jax.jit(jax.vmap(ipm.solve))(stack_problems(probs))
+    single = jax.jit(ipm.solve)
+    for i, p in enumerate(probs):
+        one = single(p)
+        assert bool(batch.converged[i])
+        np.testing.assert_allclose(np.asarray(batch.objective[i]), np.asarray(one.objective), rtol=1e-9, atol=1e-12)
+
+
+def test_analyze_uses_interior_point_and_admm_on_request():
+    lay = stairs(5)
+    a = analyze_layout(lay)
+    assert a.solver == "jax" and a.converged and 0 < a.iters < 80
+    b = analyze_layout(lay, solver="admm")
+    assert b.solver == "admm" and b.stable == a.stable
+
+
+@needs_shared
+def test_paper_structures_match_labels_and_highs(tmp_path):
+    """Batched interior point on the paper's structures: the physical outcome,
+    HiGHS's label and weakest brick, scores within 1e-3 of HiGHS's."""
+    from stablelego_jax.batch import score_files
+
+    with open(os.path.join(SHARED_REF, "labels.json")) as fh:
+        labels = {k: v for k, v in json.load(fh).items() if not k.startswith("_")}
+    paths = [os.path.join(SHARED_REF, name) for name in labels]
+    out = tmp_path / "r.jsonl"
+    st = score_files(paths, str(out), progress=False)
+    assert (st.scored, st.not_converged) == (len(paths), 0)
+    with open(out) as fh:
+        recs = {os.path.basename(r["file"]): r for r in map(json.loads, fh)}
+    for name, lab in labels.items():
+        r = recs[name]
+        ex = analyze_layout(load_layout(os.path.join(SHARED_REF, name)), solver="exact")
+        assert r["stable"] == lab["stable"] == ex.stable, name
+        if not lab["stable"]:
+            assert r["weakest"] == lab["collapses_at"] == ex.weakest, name
+        else:
+            assert max(abs(r["scores"][k] - ex.scores[k]) for k in ex.scores) < 1e-3, name

@@ -1,0 +1,81 @@
+"""The problem pytrees, the one size ladder and solve plans (stablelego_jax.solvers.problem)."""
+import os
+
+import numpy as np
+import pytest
+
+from conftest import EXAMPLES
+from stablelego_jax.formats.reader import load_layout
+from stablelego_jax.generate.procedural import cuboid, stairs, tower
+from stablelego_jax.model import KNOB, compile_layout
+from stablelego_jax.soft import candidate_brick, compile_soft
+from stablelego_jax.solvers.problem import (
+    bucket_shape,
+    layer_bucket,
+    pad_soft,
+    pad_to_bucket,
+    plan_problem,
+    rung,
+    solve_plan,
+    stack_soft,
+    to_layered,
+)
+
+
+def test_rung_ladder():
+    ks = range(1, 5000, 7)
+    r = [rung(k) for k in ks]
+    assert all(x >= k for x, k in zip(r, ks))
+    assert all(x <= 1.25 * k + 8 for x, k in zip(r, ks))  # at most 25% padding (one step of 8 more)
+    assert len(set(r)) < 40  # few distinct shapes
+    assert [rung(k) for k in (1, 8, 9, 17, 41, 57)] == [8, 8, 16, 24, 56, 72]
+    assert [rung(k, 64) for k in (1, 65, 81)] == [64, 80, 104]
+    assert all(rung(v) == v for v in set(r))
+    assert layer_bucket(3, 5) == (4, 6) and layer_bucket(70, 130) == (80, 144)
+
+
+def test_bucket_shape_and_padding_on_the_ladder():
+    m = compile_layout(stairs(4))
+    n, mm, p = bucket_shape(m.n, m.m, m.group.shape[1])
+    assert (n, mm, p) == (rung(m.n, 8), rung(m.m, 64), rung(m.group.shape[1], 4))
+    pm = pad_to_bucket(m)
+    assert (pm.n_pad, pm.m_pad) == (n, mm)
+    np.testing.assert_array_equal(pm.dense_A(), m.dense_A())
+
+
+def test_layered_plan_numbers_bricks_layer_by_layer():
+    m = compile_layout(cuboid(7, 7, 6))
+    key = solve_plan(m)
+    assert key[0] == "layered" and key[1:] == layer_bucket(6, 49)
+    fm, prob = plan_problem(m, key, rung(m.m, 64), rung(m.group.shape[1], 4))
+    L, B = key[1:]
+    assert prob.gravity.shape[0] == L * B and prob.layers.shape == (L,)
+    lay = to_layered(fm, L, B)
+    # every column joins one layer or two adjacent ones
+    cb = lay.col_brick[: m.m]
+    lo, hi = np.minimum(cb[:, 0], cb[:, 1]), np.maximum(cb[:, 0], cb[:, 1])
+    real = hi < L * B
+    assert (hi[real] // B - lo[real] // B <= 1).all()
+    assert solve_plan(compile_layout(tower(3)))[0] == "dense"
+    key = solve_plan(compile_layout(stairs(60)))
+    assert key[0] == "layered" and key[1] >= 60
+
+
+def test_pad_and_stack_soft():
+    lay = load_layout(os.path.join(EXAMPLES, "stablelego", "stair_20.json"))
+    soft = compile_soft(lay, [candidate_brick([(4, 21, 0, 1, 2)])])
+    p = soft.problem
+    q = pad_soft(p, 32, 1024, 32)
+    assert q.mass.shape == (32,) and q.col_kind.shape == (1024,) and q.group.shape == (32, 32)
+    assert not q.brick_mask[soft.n:].any() and not q.col_mask[p.col_kind.shape[0]:].any()
+    assert (q.col_kind[p.col_kind.shape[0]:] == KNOB).all()
+    assert (q.col_coef[p.col_kind.shape[0]:] == 0).all()
+    assert (q.col_brick[p.col_kind.shape[0]:] == 32).all()
+    assert (q.col_brick[: p.col_kind.shape[0]][p.col_brick == soft.n] == 32).all()  # baseplate moved to the new n
+    np.testing.assert_array_equal(q.unit[soft.n:], np.arange(soft.n, 32))
+    auto = pad_soft(p)
+    assert auto.mass.shape[0] >= soft.n and auto.col_kind.shape[0] >= p.col_kind.shape[0]
+    with pytest.raises(ValueError, match="cannot pad"):
+        pad_soft(p, 8, 1024, 32)
+    s = stack_soft([q, q])
+    assert s.col_coef.shape == (2, 1024, 2, 6)

@@ -1,0 +1,262 @@
+"""Training a generator with the stability loss (stablelego_jax.train)."""
+import json
+import os
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from stablelego_jax.blas import one_blas_thread
+from stablelego_jax.cli import main
+from stablelego_jax.train import net
+from stablelego_jax.train import train as T
+from stablelego_jax.train.shapes import procedural_shape
+
+pytestmark = pytest.mark.usefixtures("x64")  # the tests call the jitted training step themselves
+
+TINY = {"n_procedural": 6, "mesh_dir": None, "steps": 4, "batch": 2, "n_pad": 16, "m_pad": 512, "p_pad": 32,
+        "competitors": 4, "random_competitors": 2, "checkpoint_every": 2, "eval_every": 100, "eval_train": 2,
+        "eval_heldout": False, "log_every": 1, "width": 8, "lam": 50.0, "lr": 0.01}
+
+
+def _cfg(tmp_path, **kw):
+    path = tmp_path / "cfg.json"
+    path.write_text(json.dumps(dict(TINY, **kw)))
+    return T.load_config(str(path))
+
+
+def _batch(cfg, kinds=("cantilever", "tee")):
+    shapes = [procedural_shape(i, kind=k) for i, k in enumerate(kinds)]
+    return T.Arrays(shapes, cfg["crop"], cfg["grid"])
+
+
+def test_loss_decreases_and_stability_gradient_reaches_params(tmp_path):
+    cfg = _cfg(tmp_path)
+    probs_fn, step_fn, opt, terms, grad_fn = T.make_fns(cfg)
+    arr = _batch(cfg)
+    params = T.initial_params(cfg, 0)
+    rng = np.random.default_rng(0)
+    with one_blas_thread():
+        p = np.asarray(probs_fn(params, arr.x, arr.valid))
+        sub = T.batch_subsets(p, arr.valid, cfg, rng)
+        args = (arr.x, arr.valid, arr.target, *sub)
+        # the stability term's gradient reaches every layer of the generator:
+        # grad(total at lam) - grad(total at lam = 0) = grad(lam * stability)
+        lam, bw = np.float64(cfg["lam"]), np.float64(0.1)
+        _, aux, g1 = grad_fn(params, lam, bw, *args)
+        _, _, g0 = grad_fn(params, np.float64(0.0), bw, *args)
+        assert float(aux[2]) > 0.0
+        g = jax.tree_util.tree_map(lambda a, b: a - b, g1, g0)
+        for w, b in g:
+            assert np.isfinite(np.asarray(w)).all() and np.isfinite(np.asarray(b)).all()
+            assert float(jnp.abs(w).sum()) > 0.0
+        # a few steps on a fixed batch and subset lower the total loss
+        opt_state = opt.init(params)
+        losses = []
+        for _ in range(10):
+            params, opt_state, loss, _ = step_fn(params, opt_state, lam, bw, *args[:3], sub)
+            losses.append(float(loss))
+    assert np.isfinite(losses).all()
+    assert losses[-1] < 0.8 * losses[0]
+
+
+def test_crop_equals_full_grid():
+    s = procedural_shape(3, kind="bridge")
+    params = net.init_params(jax.random.PRNGKey(1), 8)
+    full = np.asarray(net.apply(params, net.features(s.vox)[None]))[0]
+    c, o = net.crop(s.vox, (10, 10, 6))
+    part = np.asarray(net.apply(params, net.features(c)[None]))[0]
+    xs, ys, zs = np.nonzero(c)
+    np.testing.assert_allclose(part[xs, ys, zs], full[xs + o[0], ys + o[1], zs], atol=1e-5)
+    assert np.abs(part[xs, ys, zs]).max() > 0
+
+
+def test_decoding_never_overlaps_and_stays_inside():
+    rng = np.random.default_rng(0)
+    for seed in range(6):
+        c, _ = net.crop(procedural_shape(seed).vox, (10, 10, 6))
+        valid = net.valid_placements(c)
+        p = np.where(valid, rng.random(valid.shape), 0.0)
+        for thr in (0.05, 0.5, 0.95):
+            idx, pos, size = net.decode(p, thr)
+            count = np.zeros(c.shape, int)
+            for (x, y, z), (sx, sy) in zip(pos.tolist(), size.tolist()):
+                count[x:x + sx, y:y + sy, z] += 1
+            assert count.max() <= 1 and not (count.astype(bool) & ~c).any()
+            assert (p[tuple(idx.T)] >= thr).all()
+            iou = net.decoded_iou(c, pos, size)
+            assert np.isclose(iou, count.sum() / c.sum())
+        # filling with the valid placements covers the shape exactly even when
+        # (as for a saturated network) most probabilities underflow to 0
+        q = np.where(rng.random(valid.shape) < 0.02, p, 0.0)
+        _, pos, size = net.decode(q, 0.5, fill=True, valid=valid)
+        assert net.decoded_iou(c, pos, size) == 1.0
+        # the soft coverage of a 0/1 decoding is its cell count
+        q = np.zeros_like(p)
+        q[tuple(idx.T)] = 1.0
+        np.testing.assert_allclose(np.asarray(net.coverage(jnp.asarray(q[None])))[0], count)
+
+
+def test_checkpoint_resume_continues_exactly(tmp_path):
+    cfg = _cfg(tmp_path)
+    p_full, h_full = T.train(cfg, str(tmp_path / "a"), log=open(os.devnull, "w"))
+    T.train(cfg, str(tmp_path / "b"), log=open(os.devnull, "w"), max_steps=2)
+    z = np.load(tmp_path / "b" / "checkpoint.npz")
+    assert int(z["step"]) == 2 and "param_0" in z.files and "opt_0" in z.files
+    p_res, h_res = T.train(cfg, str(tmp_path / "b"), resume=True, log=open(os.devnull, "w"))
+    for (w1, b1), (w2, b2) in zip(p_full, p_res):
+        np.testing.assert_array_equal(np.asarray(w1), np.asarray(w2))
+        np.testing.assert_array_equal(np.asarray(b1), np.asarray(b2))
+    assert [h["loss"] for h in h_full if "loss" in h] == [h["loss"] for h in h_res if "loss" in h]
+
+
+def test_bad_config_names_the_file(tmp_path, capsys):
+    missing = str(tmp_path / "nope.json")
+    assert main(["train", "--config", missing, "--out", str(tmp_path / "o")]) == 2
+    assert "nope.json" in capsys.readouterr().err
+    bad = tmp_path / "bad.json"
+    bad.write_text(json.dumps({"stepz": 3}))
+    with pytest.raises(T.ConfigError, match="bad.json.*unknown config key 'stepz'"):
+        T.load_config(str(bad))
+    bad.write_text(json.dumps({"steps": "many"}))
+    with pytest.raises(T.ConfigError, match="'steps' must be int"):
+        T.load_config(str(bad))
+    bad.write_text("{not json")
+    assert main(["train", "--config", str(bad), "--out", str(tmp_path / "o")]) == 2
+    assert "bad.json" in capsys.readouterr().err
+    assert not (tmp_path / "o").exists()
+
+
+def test_subset_shares_keep_every_cell_whole():
+    # placements 0: 1x1 on cell a; 1: 1x2 on cells a, b; 2: 1x1 on cell b; 3: 1x1 alone on cell c; 4: padding
+    inc = np.zeros((1, 4, 5))
+    inc[0, 0, [0, 1]] = 1  # cell a
+    inc[0, 1, [1, 2]] = 1  # cell b
+    inc[0, 2, 3] = 1  # cell c
+    ps = jnp.asarray([[0.6, 0.2, 0.9, 0.01, 0.0]])
+    w = np.asarray(net.subset_shares(ps, jnp.asarray(inc)))[0]
+    # a lone placement exists fully whatever its probability; padding not at all
+    assert np.isclose(w[3], 1.0) and w[4] == 0.0
+    # overlapping alternatives split their cells in the ratio of their probabilities
+    np.testing.assert_allclose(w[:3], [0.6 / 0.8, 0.2 / 1.1, 0.9 / 1.1])
+    # so no cell of the subset ends up with less than its most contested share
+    cell_mass = inc[0] @ w
+    assert (cell_mass[:3] >= 0.9).all()
+    # lowering a lone placement's probability does not lower its weight
+    g = jax.grad(lambda q: net.subset_shares(q, jnp.asarray(inc))[0, 3])(ps)
+    assert float(g[0, 3]) == 0.0
+
+
+def test_tempered_shares_reach_a_losing_alternative():
+    # placement 0: 1x1 on cell a at p ~ 1; placement 1: a 1x2 alternative on cells a, b
+    # at p = 1e-4; placement 2: 1x1 on cell b at p ~ 1
+    inc = np.zeros((1, 2, 3))
+    inc[0, 0, [0, 1]] = 1
+    inc[0, 1, [1, 2]] = 1
+    ps = jnp.asarray([[0.999, 1e-4, 0.999]])
+    grads = {}
+    for power in (1.0, 0.25):
+        w = np.asarray(net.subset_shares(ps, jnp.asarray(inc), power=power))[0]
+        # the cells keep their full mass either way
+        np.testing.assert_allclose(inc[0] @ w, 1.0)
+        g = jax.grad(lambda a: net.subset_shares(jax.nn.sigmoid(a), jnp.asarray(inc), power=power)[0, 1])(
+            jnp.log(ps / (1 - ps)))
+        grads[power] = float(g[0, 1])  # d share / d logit of the alternative
+    # tempered: the alternative holds (1e-4)^0.25 / (0.999^0.25 + ...) ~ 0.09 of its cells
+    w = np.asarray(net.subset_shares(ps, jnp.asarray(inc), power=0.25))[0]
+    assert 0.05 < w[1] < 0.15
+    assert grads[1.0] < 2e-4 and grads[0.25] > 100 * grads[1.0]
+
+
+def test_grad_floor_moves_saturated_placements(tmp_path):
+    # with the network's output bias far negative every probability is ~0, so
+    # d p / d logit ~ 0: without the floor the stability term cannot move anything
+    arr = _batch(_cfg(tmp_path))
+    out = {}
+    for floor in (0.0, 0.1):
+        cfg = _cfg(tmp_path, grad_floor=floor, out_bias=-40.0)
+        probs_fn, _, _, _, grad_fn = T.make_fns(cfg)
+        params = T.initial_params(cfg, 0)
+        with one_blas_thread():
+            p = np.asarray(probs_fn(params, arr.x, arr.valid))
+            sub = T.batch_subsets(p, arr.valid, cfg, np.random.default_rng(0), arr.span)
+            _, aux, g1 = grad_fn(params, np.float64(100.0), np.float64(0.0), arr.x, arr.valid, arr.target, *sub)
+            _, _, g0 = grad_fn(params, np.float64(0.0), np.float64(0.0), arr.x, arr.valid, arr.target, *sub)
+        assert float(aux[2]) > 0.0  # the filled subset puts every cell in the problem
+        out[floor] = float(jnp.abs(g1[-1][1] - g0[-1][1]).sum())  # stability gradient on the output bias
+    assert out[0.0] < 1e-9 < out[0.1]
+
+
+def test_config_rejects_unknown_choices(tmp_path):
+    for key, val in (("subset_base", "partial"), ("share_scope", "cells"), ("lr_schedule", "linear"),
+                     ("random_pool", "all")):
+        bad = tmp_path / "bad.json"
+        bad.write_text(json.dumps({key: val}))
+        with pytest.raises(T.ConfigError, match=f"bad.json.*'{key}' must be one of"):
+            T.load_config(str(bad))
+
+
+def test_share_power_must_be_in_range(tmp_path):
+    bad = tmp_path / "bad.json"
+    bad.write_text(json.dumps({"share_power": 0.0}))
+    with pytest.raises(T.ConfigError, match="bad.json.*share_power"):
+        T.load_config(str(bad))
+
+
+def test_random_pool_valid_draws_beyond_the_spanning_placements(tmp_path):
+    # a solid box has no overhang, so no spanning placements: with the default
+    # pool the random competitors are none, with "valid" they are drawn from
+    # every valid placement (e.g. a 2x1 that could replace two 1x1 in a column)
+    box = procedural_shape(0, kind="box")
+    sizes = {}
+    for pool in ("span", "valid"):
+        cfg = _cfg(tmp_path, random_pool=pool, competitors=0, random_competitors=6, subset_base="filled")
+        arr = T.Arrays([box], cfg["crop"], cfg["grid"])
+        assert not arr.span.any()
+        p = np.where(arr.valid[0], 0.2, 0.0)
+        sub = T.select_subset(p, arr.valid[0], cfg, np.random.default_rng(0), arr.span[0])
+        dec = len(net.decode(p, cfg["threshold"], True, arr.valid[0])[0])
+        sizes[pool] = int(sub.mask.sum()) - dec
+        assert arr.valid[0].ravel()[sub.fi[sub.mask]].all()
+    assert sizes == {"span": 0, "valid": 6}
+
+
+def test_brick_weight_charges_each_placement(tmp_path):
+    # a 2x4x1 slab tiled exactly (fidelity error 0) once by eight 1x1 bricks
+    # and once by one 2x4: with brick_weight the fidelity term is
+    # brick_weight * (number of bricks), so the 2x4 tiling is cheaper
+    vox = np.zeros((10, 10, 6), bool)
+    vox[:2, :4, 0] = True
+    valid = net.valid_placements(vox)[None]
+    k11, k24 = net.TYPES.index((1, 1)), net.TYPES.index((2, 4))
+    # a network with no hidden layer: logit = 120 * (input channel c of the
+    # type) - 60, so p = 1 where that channel is 1 and ~1e-26 elsewhere
+    w = np.zeros((1, 1, 1, net.N_FEATURES, len(net.TYPES)), np.float32)
+    w[0, 0, 0, 0, k11] = w[0, 0, 0, 1, k24] = 120.0
+    params = [(jnp.asarray(w), jnp.full((len(net.TYPES),), -60.0, jnp.float32))]
+    x_ones = np.zeros((1, 10, 10, 6, net.N_FEATURES), np.float32)
+    x_ones[0, ..., 0] = vox  # a 1x1 on every cell of the slab
+    x_big = np.zeros_like(x_ones)
+    x_big[0, 0, 0, 0, 1] = 1.0  # one 2x4 at the corner
+    fid = {}
+    for bw in (0.0, 0.3):
+        cfg = _cfg(tmp_path, brick_weight=bw, dilations=[])
+        probs_fn, _, _, terms, _ = T.make_fns(cfg)
+        for name, x in (("ones", x_ones), ("big", x_big)):
+            p = np.asarray(probs_fn(params, x, valid))
+            assert p.sum() == pytest.approx(8 if name == "ones" else 1, rel=1e-9)
+            sub = T.batch_subsets(p, valid, cfg, np.random.default_rng(0))
+            fid[bw, name] = float(terms(params, x, valid, vox[None], *sub)[0])
+    assert fid[0.0, "ones"] < 1e-9 and fid[0.0, "big"] < 1e-9
+    assert fid[0.3, "ones"] == pytest.approx(0.3 * 8, rel=1e-6)
+    assert fid[0.3, "big"] == pytest.approx(0.3 * 1, rel=1e-6)
+
+
+def test_config_diff_names_the_changed_keys(tmp_path):
+    # train --resume and benchmarks/training.py's reuse check both rely on it
+    a = _cfg(tmp_path)
+    b = dict(a, lr=0.02, steps=a["steps"] + 10, brick_weight=0.1)
+    assert T.config_diff(a, a) == []
+    assert T.config_diff(a, b) == ["brick_weight", "lr", "steps"]
+    assert T.config_diff(a, b, ignore=("steps",)) == ["brick_weight", "lr"]
