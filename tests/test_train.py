@@ -260,3 +260,21 @@ def test_config_diff_names_the_changed_keys(tmp_path):
     assert T.config_diff(a, a) == []
     assert T.config_diff(a, b) == ["brick_weight", "lr", "steps"]
     assert T.config_diff(a, b, ignore=("steps",)) == ["brick_weight", "lr"]
+
+
+def test_training_without_optax_is_a_clear_error_and_writes_nothing(tmp_path):
+    """optax is the optional 'train' extra: without it, one line, exit 2, no folder."""
+    import subprocess
+    import sys
+
+    cfg = tmp_path / "c.json"
+    cfg.write_text(json.dumps({"mesh_dir": None, "steps": 1}))
+    out = tmp_path / "o"
+    code = ("import sys; sys.modules['optax'] = None\n"
+            "from stablelego_jax.cli import main\n"
+            f"sys.exit(main(['train', '--config', {str(cfg)!r}, '--out', {str(out)!r}]))")
+    root = os.path.join(os.path.dirname(__file__), "..")
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300,
+                       env=dict(os.environ, PYTHONPATH=root))
+    assert r.returncode == 2 and "optax" in r.stderr and "Traceback" not in r.stderr
+    assert not out.exists()

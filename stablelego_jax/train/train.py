@@ -480,9 +480,9 @@ def train(cfg: dict, out: str, resume: bool = False, log=sys.stderr, max_steps: 
     """Train per ``cfg``; checkpoints in ``out``. Returns (params, history).
     ``max_steps``: stop (with a checkpoint) after this many steps of this
     call, for tests of resuming. Runs in float64 (the library's scope)."""
+    probs_fn, step_fn, opt = make_fns(cfg)[:3]  # ConfigError (e.g. no optax) before anything is written
     os.makedirs(out, exist_ok=True)
     ckpt = os.path.join(out, "checkpoint.npz")
-    probs_fn, step_fn, opt = make_fns(cfg)[:3]
     if resume and os.path.exists(ckpt):
         params, opt_state, step, rng, stored, history = load_checkpoint(ckpt, cfg)
         diff = config_diff(stored, cfg, ignore=("steps",))
