@@ -38,7 +38,6 @@ import dataclasses
 import os
 
 import numpy as np
-from scipy import ndimage
 
 __all__ = [
     "MESH_SUFFIXES",
@@ -247,6 +246,8 @@ def voxelize(source, grid: int = 20, up: str = "auto", fill: str = "auto") -> Vo
     Returns a :class:`VoxelizedMesh`; ``.vox`` is (grid, grid, grid) bool
     ``[x, y, z]`` resting on z = 0 and centred in x and y.
     """
+    from scipy import ndimage  # imported here: building the CLI parser needs this module, not scipy
+
     grid = int(grid)
     if grid < 2:
         raise ValueError(f"grid must be >= 2, got {grid}")
