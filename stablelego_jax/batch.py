@@ -23,7 +23,7 @@ import functools
 import json
 import os
 import time
-from typing import Iterable, Sequence
+from typing import Iterable, Iterator, Sequence
 
 import jax
 import numpy as np
@@ -51,8 +51,8 @@ from .solvers.problem import (
     to_problem,
 )
 
-__all__ = ["find_layouts", "read_results", "ScoreStats", "score_files", "batch_solver_fn", "batch_sizes",
-           "plan_bytes"]
+__all__ = ["find_layouts", "read_results", "ScoreStats", "iter_analyses", "analyze_many", "score_files",
+           "batch_solver_fn", "batch_sizes", "plan_bytes"]
 
 LAYOUT_EXTS = (".json", ".txt", ".ldr")
 # files that sit beside StableLego layouts but are not layouts
@@ -185,6 +185,152 @@ def _write_score_grid(path: str, layout, scores) -> None:
     atomic_write(os.path.join(path, "stability_score.npy"), lambda fh: np.save(fh, grid), binary=True)
 
 
+def _device_count(devices) -> int:
+    n_dev = jax.local_device_count() if devices in ("all", None) else int(devices)
+    if not 1 <= n_dev <= jax.local_device_count():
+        raise ValueError(f"--devices {devices}: this machine has {jax.local_device_count()} local device(s)")
+    return n_dev
+
+
+def iter_analyses(
+    layouts: Sequence,
+    solver: str = "jax",
+    params: Params = Params(),
+    opts=None,
+    batch: int = 64,
+    devices: str | int = 1,
+    exact_method: str = "highs",
+    exact_scale: bool = True,
+    first_cap: int = 1000,
+    method: str = "ours",
+    stats: ScoreStats | None = None,
+) -> Iterator[list[tuple[int, object]]]:
+    """Analyse many in-memory layouts, batched: yields, per solver call, the
+    list of ``(i, Analysis)`` for the ``layouts[i]`` it solved (batches do
+    not come in input order), and first one list of ``(i, exception)`` for
+    the layouts that cannot be compiled.
+
+    solver "jax" / "admm": layouts are grouped by solver bucket
+    (:func:`~stablelego_jax.solvers.problem.solve_plan`), padded to the
+    group's largest column count and solved ``batch`` at a time by one
+    compiled, ``vmap``-ed solver per (bucket, batch size), split over
+    ``devices`` local devices; "exact": HiGHS one at a time (``method``:
+    "ours" or a baseline). ``first_cap`` (ADMM only): iteration cap of a
+    first pass, after which only uncertified layouts are solved again with
+    the full budget. ``stats`` (a :class:`ScoreStats`) accumulates solve and
+    compile time, compiles and non-converged counts. An Analysis of a JAX
+    solver has ``time_s`` = its share of its batch(es) and ``iters``.
+    """
+    if solver not in ("jax", "admm", "exact"):
+        raise ValueError(f"unknown solver {solver!r} (expected 'jax', 'admm' or 'exact')")
+    if method != "ours" and solver != "exact":
+        raise ValueError(f"method {method!r} runs on the exact solver only")
+    st = stats if stats is not None else ScoreStats()
+    loaded, bad = [], []
+    for i, lay in enumerate(layouts):
+        try:
+            loaded.append((i, lay, compile_layout(lay, params)))
+        except Exception as exc:  # a bad layout is reported, the others go on
+            bad.append((i, exc))
+    if bad:
+        yield bad
+    if solver == "exact":
+        for i, lay, model in loaded:
+            t1 = time.perf_counter()
+            if method == "ours":
+                r = solve_exact(model, method=exact_method, scale=exact_scale)
+                a = make_analysis(lay, model, r.f, "exact", r.success, t1, objective=r.objective)
+            else:
+                a = analyze_baseline(lay, model, method, t1, exact_method=exact_method, scale=exact_scale)
+            st.solve_s += a.time_s
+            st.not_converged += not a.converged
+            yield [(i, a)]
+        return
+    if opts is None:
+        opts = ipm.IPMOptions() if solver == "jax" else admm.SolverOptions()
+    n_dev = _device_count(devices)
+
+    def solve_batch(probs, bsz, o):
+        """Solve one batch of problems with options ``o``; returns (solution, seconds)."""
+        # pad the batch to a power of two (times n_dev) so few batch shapes compile
+        size = n_dev
+        while size < len(probs):
+            size *= 2
+        size = min(size, bsz)
+        probs = probs + [probs[-1]] * (size - len(probs))
+        arrays = tuple(a for a in stack_problems(probs) if a is not None)
+        n0, t0c = STATS.compiles, STATS.compile_s
+        exe = compiled("batch-ipm" if isinstance(o, ipm.IPMOptions) else "batch-admm",
+                       batch_solver_fn(params, o, n_dev), (params, o, n_dev), arrays, export=n_dev == 1)
+        st.compiles += STATS.compiles - n0
+        st.compile_s += STATS.compile_s - t0c
+        t1 = time.perf_counter()
+        sol = Solution(*jax.device_get(exe(*arrays)))
+        dt = time.perf_counter() - t1
+        st.solve_s += dt
+        return sol, dt
+
+    # group by solver bucket (interior point: dense or layered shape; ADMM:
+    # bricks bucket); columns and contact slots are padded to the group's
+    # largest, so a run compiles one solver per bucket (and batch size)
+    groups: dict = {}
+    for item in loaded:
+        key = solve_plan(item[2]) if solver == "jax" else ("dense", rung(item[2].n, MIN_BRICKS))
+        groups.setdefault(key, []).append(item)
+    for key in sorted(groups):
+        items = groups[key]
+        m_pad = rung(max(it[2].m for it in items), MIN_COLUMNS)
+        p_pad = rung(max(it[2].group.shape[1] for it in items), MIN_SLOTS)
+        prepared = []
+        for it in items:
+            if solver == "jax":
+                fm, prob = plan_problem(it[2], key, m_pad, p_pad)
+            else:
+                fm = it[2].pad(key[1], m_pad, p_pad)
+                prob = to_problem(fm)
+            prepared.append((it, fm, prob))
+        bsz = batch_sizes(plan_bytes(key, m_pad), batch, n_dev)
+        # ADMM: pass 1 with an iteration cap; only layouts it leaves uncertified
+        # are solved again (from scratch, full budget), so one slow layout does
+        # not hold a whole batch for its full iteration count
+        passes = [opts]
+        if solver == "admm" and 0 < first_cap < opts.max_iter:
+            passes = [dataclasses.replace(opts, max_iter=first_cap), opts]
+        pending, spent = prepared, {}
+        for k, o in enumerate(passes):
+            last = k == len(passes) - 1
+            retry = []
+            for b0 in range(0, len(pending), bsz):
+                sub = pending[b0: b0 + bsz]
+                sol, dt = solve_batch([pr for _, _, pr in sub], bsz, o)
+                done = []
+                for j, ((i, lay, model), fm, _) in enumerate(sub):
+                    t_prev, it_prev = spent.get(i, (0.0, 0))
+                    spent[i] = (t_prev + dt / len(sub), it_prev + int(sol.iters[j]))
+                    if not last and not bool(sol.converged[j]):
+                        retry.append(sub[j])
+                        continue
+                    a = make_analysis(lay, fm, np.asarray(sol.f[j]), solver, bool(sol.converged[j]),
+                                      time.perf_counter(), iters=spent[i][1], gap=float(sol.gap[j]),
+                                      objective=float(sol.objective[j]))
+                    a.time_s = spent[i][0]  # amortised share of its batch(es)
+                    st.not_converged += not a.converged
+                    done.append((i, a))
+                if done:
+                    yield done
+            pending = retry
+
+
+def analyze_many(layouts: Sequence, solver: str = "jax", **kwargs) -> list:
+    """:func:`iter_analyses` collected in input order: one Analysis (or the
+    exception of a layout that cannot be compiled) per layout."""
+    out: list = [None] * len(layouts)
+    for part in iter_analyses(layouts, solver, **kwargs):
+        for i, a in part:
+            out[i] = a
+    return out
+
+
 def _score_files(
     inputs: Sequence[str],
     out: str,
@@ -218,18 +364,16 @@ def _score_files(
     of a first pass, after which only uncertified layouts are solved again
     with the full budget (0: one pass); chunk: layouts read and grouped at a
     time (bounds host memory). Returns run totals; files already in ``out``
-    are skipped.
+    are skipped. The solving is :func:`iter_analyses`; lines are appended and
+    flushed per solver call.
     """
     if solver not in ("jax", "admm", "exact"):
         raise ValueError(f"unknown solver {solver!r} (expected 'jax', 'admm' or 'exact')")
     if method != "ours" and solver != "exact":
         raise ValueError(f"method {method!r} runs on the exact solver only")
-    if opts is None:
-        opts = ipm.IPMOptions() if solver == "jax" else admm.SolverOptions()
     t_run = time.perf_counter()
-    n_dev = jax.local_device_count() if devices in ("all", None) else int(devices)
-    if not 1 <= n_dev <= jax.local_device_count():
-        raise ValueError(f"--devices {devices}: this machine has {jax.local_device_count()} local device(s)")
+    if solver != "exact":
+        _device_count(devices)  # refuse a bad count before reading anything
     paths = find_layouts(inputs)
     done = read_results(out)
     todo = [p for p in paths if p not in done]
@@ -245,42 +389,13 @@ def _score_files(
             fh.flush()
             os.fsync(fh.fileno())
 
-        def record(p, lay, a, **extra) -> dict:
-            """The results line of one analysed layout (and its score grid)."""
-            if write_scores and os.path.isdir(p) and a.scores:
-                _write_score_grid(p, lay, a.scores)
-            st.not_converged += not a.converged
-            return dict(a.to_json(), file=p, **extra)
-
-        def _solve_batch(probs, key, bsz, o):
-            """Solve one batch of problems with options ``o``; returns (solution, seconds)."""
-            # pad the batch to a power of two (times n_dev) so few batch shapes compile
-            size = n_dev
-            while size < len(probs):
-                size *= 2
-            size = min(size, bsz)
-            probs = probs + [probs[-1]] * (size - len(probs))
-            arrays = tuple(a for a in stack_problems(probs) if a is not None)
-            n0, t0c = STATS.compiles, STATS.compile_s
-            exe = compiled("batch-ipm" if isinstance(o, ipm.IPMOptions) else "batch-admm",
-                           batch_solver_fn(params, o, n_dev), (params, o, n_dev), arrays, export=n_dev == 1)
-            st.compiles += STATS.compiles - n0
-            st.compile_s += STATS.compile_s - t0c
-            t1 = time.perf_counter()
-            sol = Solution(*jax.device_get(exe(*arrays)))
-            dt = time.perf_counter() - t1
-            st.solve_s += dt
-            return sol, dt
-
         for c0 in range(0, len(todo), chunk):
             part = todo[c0: c0 + chunk]
             t0 = time.perf_counter()
             loaded, errs = [], []
             for p in part:
                 try:
-                    lay = load_layout(p, library)
-                    model = compile_layout(lay, params)
-                    loaded.append((p, lay, model))
+                    loaded.append((p, load_layout(p, library)))
                 except Exception as exc:  # a bad layout is reported, the run goes on
                     errs.append({"file": p, "error": error_message(p, exc)})
             st.load_s += time.perf_counter() - t0
@@ -288,69 +403,24 @@ def _score_files(
                 emit(errs)
                 st.errors += len(errs)
                 bar.advance(len(errs))
-            if solver == "exact":
-                for p, lay, model in loaded:
-                    t1 = time.perf_counter()
-                    if method == "ours":
-                        r = solve_exact(model, method=exact_method, scale=exact_scale)
-                        a = make_analysis(lay, model, r.f, "exact", r.success, t1, objective=r.objective)
-                    else:
-                        a = analyze_baseline(lay, model, method, t1, exact_method=exact_method, scale=exact_scale)
-                    st.solve_s += a.time_s
-                    emit([record(p, lay, a)])
+            for part_done in iter_analyses([lay for _, lay in loaded], solver, params, opts, batch, devices,
+                                           exact_method, exact_scale, first_cap, method, stats=st):
+                recs = []
+                for i, a in part_done:
+                    p, lay = loaded[i]
+                    if isinstance(a, Exception):
+                        recs.append({"file": p, "error": error_message(p, a)})
+                        st.errors += 1
+                        continue
+                    if write_scores and os.path.isdir(p) and a.scores:
+                        _write_score_grid(p, lay, a.scores)
+                    rec = dict(a.to_json(), file=p)
+                    if solver != "exact":
+                        rec["iters"] = a.iters
+                    recs.append(rec)
                     st.scored += 1
-                    bar.advance(1)
-                continue
-            # group by solver bucket (interior point: dense or layered shape; ADMM:
-            # bricks bucket); columns and contact slots are padded to the group's
-            # largest, so a run compiles one solver per bucket (and batch size)
-            groups: dict = {}
-            for item in loaded:
-                key = solve_plan(item[2]) if solver == "jax" else ("dense", rung(item[2].n, MIN_BRICKS))
-                groups.setdefault(key, []).append(item)
-            for key in sorted(groups):
-                items = groups[key]
-                m_pad = rung(max(it[2].m for it in items), MIN_COLUMNS)
-                p_pad = rung(max(it[2].group.shape[1] for it in items), MIN_SLOTS)
-                prepared = []
-                for it in items:
-                    if solver == "jax":
-                        fm, prob = plan_problem(it[2], key, m_pad, p_pad)
-                    else:
-                        fm = it[2].pad(key[1], m_pad, p_pad)
-                        prob = to_problem(fm)
-                    prepared.append((it, fm, prob))
-                gkey = key + (m_pad, p_pad)
-                bsz = batch_sizes(plan_bytes(key, m_pad), batch, n_dev)
-                # ADMM: pass 1 with an iteration cap; only layouts it leaves uncertified
-                # are solved again (from scratch, full budget), so one slow layout does
-                # not hold a whole batch for its full iteration count
-                passes = [opts]
-                if solver == "admm" and 0 < first_cap < opts.max_iter:
-                    passes = [dataclasses.replace(opts, max_iter=first_cap), opts]
-                pending, spent = prepared, {}
-                for k, o in enumerate(passes):
-                    last = k == len(passes) - 1
-                    retry = []
-                    for b0 in range(0, len(pending), bsz):
-                        sub = pending[b0: b0 + bsz]
-                        sol, dt = _solve_batch([pr for _, _, pr in sub], gkey, bsz, o)
-                        recs = []
-                        for i, ((p, lay, model), fm, _) in enumerate(sub):
-                            t_prev, it_prev = spent.get(p, (0.0, 0))
-                            spent[p] = (t_prev + dt / len(sub), it_prev + int(sol.iters[i]))
-                            if not last and not bool(sol.converged[i]):
-                                retry.append(sub[i])
-                                continue
-                            a = make_analysis(lay, fm, np.asarray(sol.f[i]), solver, bool(sol.converged[i]),
-                                        time.perf_counter())
-                            a.time_s = spent[p][0]  # amortised share of its batch(es)
-                            recs.append(record(p, lay, a, iters=spent[p][1]))
-                        if recs:
-                            emit(recs)
-                            st.scored += len(recs)
-                            bar.advance(len(recs))
-                    pending = retry
+                emit(recs)
+                bar.advance(len(recs))
     bar.close()
     st.wall_s = time.perf_counter() - t_run
     return st

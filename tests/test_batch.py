@@ -169,3 +169,26 @@ def test_capped_first_pass_then_retry_of_uncertified(tmp_path):
     for p in paths:
         ex = analyze(p, solver="exact")
         assert recs[p]["stable"] == ex.stable and recs[p]["weakest"] == ex.weakest
+
+
+def test_analyze_many_in_input_order_with_errors_in_place():
+    """The in-memory batch engine behind score (and anything that scores many
+    layouts at once): one answer per layout, in input order; a layout that
+    cannot be compiled gets its exception, the others their Analysis."""
+    import dataclasses
+
+    from stablelego_jax.analysis import analyze_layout
+    from stablelego_jax.batch import analyze_many
+    from stablelego_jax.layout import LayoutError
+
+    good = [stairs(3), tower(4), stairs(5)]
+    s2 = stairs(2)
+    broken = dataclasses.replace(s2, pos=np.zeros_like(s2.pos))  # overlapping bricks: compile fails
+    res = analyze_many([good[0], broken, good[1], good[2]], "jax", batch=2)
+    assert isinstance(res[1], LayoutError) and "overlaps" in str(res[1])
+    for a, lay in zip([res[0], res[2], res[3]], good):
+        ref = analyze_layout(lay, solver="exact")
+        assert a.stable == ref.stable and a.weakest == ref.weakest and a.converged
+        assert max(abs(a.scores[k] - ref.scores[k]) for k in ref.scores) < 1e-3
+    ex = analyze_many(good, "exact")
+    assert [a.stable for a in ex] == [a.stable for a in (res[0], res[2], res[3])]
