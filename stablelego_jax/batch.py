@@ -44,6 +44,7 @@ from .solvers.problem import (
     MIN_SLOTS,
     Problem,
     Solution,
+    batch_rung,
     plan_problem,
     rung,
     solve_plan,
@@ -252,11 +253,7 @@ def iter_analyses(
 
     def solve_batch(probs, bsz, o):
         """Solve one batch of problems with options ``o``; returns (solution, seconds)."""
-        # pad the batch to a power of two (times n_dev) so few batch shapes compile
-        size = n_dev
-        while size < len(probs):
-            size *= 2
-        size = min(size, bsz)
+        size = batch_rung(len(probs), n_dev, bsz)
         probs = probs + [probs[-1]] * (size - len(probs))
         arrays = tuple(a for a in stack_problems(probs) if a is not None)
         n0, t0c = STATS.compiles, STATS.compile_s

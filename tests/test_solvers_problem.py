@@ -10,6 +10,7 @@ from stablelego_jax.generate.procedural import cuboid, stairs, tower
 from stablelego_jax.model import KNOB, compile_layout
 from stablelego_jax.soft import candidate_brick, compile_soft
 from stablelego_jax.solvers.problem import (
+    batch_rung,
     bucket_shape,
     layer_bucket,
     pad_soft,
@@ -32,6 +33,7 @@ def test_rung_ladder():
     assert [rung(k, 64) for k in (1, 65, 81)] == [64, 80, 104]
     assert all(rung(v) == v for v in set(r))
     assert layer_bucket(3, 5) == (4, 6) and layer_bucket(70, 130) == (80, 144)
+    assert [batch_rung(k, 2, 64) for k in (1, 2, 3, 9, 200)] == [2, 2, 4, 16, 64]
 
 
 def test_bucket_shape_and_padding_on_the_ladder():

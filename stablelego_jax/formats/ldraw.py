@@ -30,7 +30,7 @@ import re
 import numpy as np
 
 from ..files import atomic_write_text, read_text
-from ..layout import TABLE_I_MASS_KG, Layout, LayoutError, library_id_for, make_layout
+from ..layout import TABLE_I_MASS_KG, Layout, LayoutError, library_id_for, make_layout, table_i_bricks
 
 __all__ = [
     "PARTS",
@@ -291,12 +291,12 @@ def parse_ldr(text: str, source: str = "<memory>", ground: bool = True) -> Layou
     x -= min(int(x.min()), 0)
     y -= min(int(y.min()), 0)
     z -= int(z.min()) if ground else min(int(z.min()), 0)
+    table_mass, table_bids, table_oris = table_i_bricks(size)
     mass, bids, oris = [], [], []
     for i in range(n):
-        sx, sy = int(size[i, 0]), int(size[i, 1])
-        bid, ori = library_id_for(sx, sy)
+        bid, ori = table_bids[i], int(table_oris[i])
         meta = metas[i]
-        m = meta.get("mass", TABLE_I_MASS_KG[tuple(dims_l[i])])
+        m = meta.get("mass", float(table_mass[i]))
         if isinstance(m, bool) or not isinstance(m, (int, float)):
             raise LayoutError(source, f"line {lines_of[i]}: mass {m!r} is not a number", keys[i])
         mass.append(float(m))

@@ -20,6 +20,7 @@ from ..layout import (
     Layout,
     LayoutError,
     Library,
+    brick_layout,
     default_library,
     library_id_for,
     make_layout,
@@ -87,7 +88,7 @@ def parse_json_layout(raw, library: Library | None = None, source: str = "<memor
 
 def parse_text_layout(text: str, source: str = "<memory>") -> Layout:
     """Text layout (``HxW (x,y,z)`` per line) -> Layout; keys are line numbers."""
-    keys, pos, size, mass, bids, oris = [], [], [], [], [], []
+    keys, pos, size = [], [], []
     for lineno, line in enumerate(text.splitlines(), start=1):
         s = line.strip()
         if not s or s.startswith("#"):
@@ -114,19 +115,14 @@ def parse_text_layout(text: str, source: str = "<memory>") -> Layout:
                 raise LayoutError(source, f"line {lineno}: coordinate {cut(tok)} is too large "
                                           f"(at most {MAX_COORD})", key)
             coords.append(int(v))
-        dims = (min(h, w), max(h, w))
-        if dims not in TABLE_I_MASS_KG:
+        if (min(h, w), max(h, w)) not in TABLE_I_MASS_KG:
             raise LayoutError(source, f"line {lineno}: {h}x{w} is not a library brick", key)
-        bid, ori = library_id_for(h, w)
         keys.append(key)
         pos.append(coords)
         size.append((h, w))
-        mass.append(TABLE_I_MASS_KG[dims])
-        bids.append(bid)
-        oris.append(ori)
     if not keys:
         raise LayoutError(source, "layout is empty (no bricks)")
-    return make_layout(keys, pos, size, mass, bids, oris, source=source, fmt="text")
+    return brick_layout(pos, size, keys, source=source, fmt="text")
 
 
 def layout_to_json_dict(layout: Layout, library: Library | str | None = None) -> dict:

@@ -21,6 +21,7 @@ __all__ = [
     "to_problem",
     "stack_problems",
     "rung",
+    "batch_rung",
     "bucket_shape",
     "pad_to_bucket",
     "pad_soft",
@@ -112,6 +113,16 @@ MIN_BRICKS, MIN_COLUMNS, MIN_SLOTS = 8, 64, 4
 #: at small sizes, where a layered factorisation costs ~ layers x slots^3.
 LAYER_RUNGS = (2, 4, 6, 8, 12, 16, 20, 24, 32, 40, 48, 64)
 SLOT_RUNGS = (1, 2, 4, 6, 8, 12, 16, 20, 24, 32, 40, 48, 56, 64, 80, 96, 128)
+
+
+def batch_rung(k: int, n_dev: int = 1, cap: int | None = None) -> int:
+    """Padded batch of ``k`` problems: ``n_dev`` times a power of two (so few
+    batch shapes compile and every device gets an equal share), at most
+    ``cap``."""
+    size = max(int(n_dev), 1)
+    while size < k:
+        size *= 2
+    return size if cap is None else min(size, cap)
 
 
 def bucket_shape(n: int, m: int, p: int) -> tuple[int, int, int]:
