@@ -11,8 +11,8 @@ def solver_for(args) -> str:
     return args.solver or ("jax" if args.method == "ours" else "exact")
 
 
-def png_target(png: str, path: str, many: bool, used: set) -> str:
-    """PNG path for ``path``: ``png`` itself for one file, else ``png/<stem>.png``.
+def png_target(png: str, path: str, many: bool, used: set, ext: str = ".png") -> str:
+    """PNG (or ``ext``) path for ``path``: ``png`` itself for one file, else ``png/<stem>.png``.
 
     One file and ``png`` an existing folder (or ending in a separator) also
     gives ``png/<stem>.png``. Two inputs with the same stem get ``<stem>-2.png``,
@@ -22,9 +22,9 @@ def png_target(png: str, path: str, many: bool, used: set) -> str:
         return png
     os.makedirs(png, exist_ok=True)
     stem = os.path.splitext(os.path.basename(os.path.normpath(path)))[0] or "layout"
-    name, k = stem + ".png", 1
+    name, k = stem + ext, 1
     while name in used:
         k += 1
-        name = f"{stem}-{k}.png"
+        name = f"{stem}-{k}{ext}"
     used.add(name)
     return os.path.join(png, name)
