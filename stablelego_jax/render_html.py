@@ -17,15 +17,19 @@ from __future__ import annotations
 import html
 import json
 import math
+import os
+import shutil
+import subprocess
+import tempfile
 from typing import Sequence
 
 import numpy as np
 
-from .files import atomic_write_text
+from .files import atomic_write, atomic_write_text
 from .layout import Layout
-from .render import Z_SCALE, score_cmap
+from .render import Z_SCALE, auto_view, score_cmap
 
-__all__ = ["Frame", "html_heatmap", "html_frames", "score_colors"]
+__all__ = ["Frame", "html_heatmap", "html_frames", "score_colors", "find_chromium", "screenshot"]
 
 
 class Frame:
@@ -67,7 +71,7 @@ def _frame_json(fr: Frame) -> dict:
 _PAGE = """<!DOCTYPE html>
 <html><head><meta charset="utf-8"><title>{title}</title>
 <style>body{{font-family:sans-serif;margin:0;background:#fff}}#head{{padding:8px 14px}}
-#plot{{width:100vw;height:calc(100vh - {head_px}px)}}#note{{color:#333;font-size:14px}}
+#plot{{width:100%}}#note{{color:#333;font-size:14px}}
 #ctl{{display:{ctl_display};align-items:center;gap:8px;margin-top:6px}}#step{{flex:1;max-width:640px}}</style>
 <script>{plotly}</script></head>
 <body><div id="head"><b>{title}</b> <span id="note"></span>
@@ -104,10 +108,10 @@ function box(f) {{
 }}
 const AX = {{showbackground: true, backgroundcolor: "#dfe3ea", gridcolor: "#fff"}};
 const LAYOUT = {{margin: {{l: 0, r: 0, t: 0, b: 0}}, uirevision: "keep", showlegend: false,
-  height: Math.max(300, window.innerHeight - {head_px}),
+  width: window.innerWidth, height: Math.max(300, window.innerHeight - {head_px}),
   scene: {{aspectmode: "data", xaxis: {{...AX, title: {{text: "x (studs)"}}}}, yaxis: {{...AX, title: {{text: "y (studs)"}}}},
           zaxis: {{...AX, title: {{text: "z"}}, showticklabels: false}},
-          camera: {{eye: {{x: 1.6, y: -2.0, z: 1.3}}}}}}}};
+          camera: {{eye: {eye}}}}}}};
 function show(n) {{
   const f = FRAMES[n];
   document.getElementById("note").textContent = f.note;
@@ -139,8 +143,11 @@ def html_frames(frames: Sequence[Frame], path: str, title: str = "stablelego") -
     except ImportError:
         raise RuntimeError("--html needs plotly: pip install 'stablelego-jax[html]'") from None
     data = json.dumps([_frame_json(f) for f in frames], separators=(",", ":")).replace("</", "<\\/")
+    elev, azim = (math.radians(v) for v in auto_view(frames[-1].layout))  # the PNG's view direction
+    eye = {"x": 3.4 * math.cos(elev) * math.cos(azim), "y": 3.4 * math.cos(elev) * math.sin(azim),
+           "z": 3.4 * math.sin(elev)}
     page = _PAGE.format(title=html.escape(title), plotly=get_plotlyjs(), frames=data, zscale=repr(Z_SCALE),
-                        colorscale=json.dumps(_colorscale()), last=len(frames) - 1,
+                        colorscale=json.dumps(_colorscale()), last=len(frames) - 1, eye=json.dumps(eye),
                         ctl_display="flex" if len(frames) > 1 else "none", head_px=80 if len(frames) > 1 else 40)
     atomic_write_text(path, page)
 
@@ -149,3 +156,43 @@ def html_heatmap(layout: Layout, scores, path: str, title: str | None = None, no
     """Write the 3D heat map page of one layout; ``scores`` (n,) as for
     :func:`~stablelego_jax.render.render_heatmap`."""
     html_frames([Frame(layout, scores, note=note)], path, title or layout.source)
+
+
+def find_chromium() -> str | None:
+    """Path of a Chromium (or Chrome) binary on PATH, or None."""
+    for name in ("chromium", "chromium-browser", "google-chrome", "google-chrome-stable"):
+        p = shutil.which(name)
+        if p:
+            return p
+    return None
+
+
+def screenshot(page: str, png: str, size: tuple[int, int] = (1000, 750), wait_ms: int = 8000,
+               timeout_s: float = 120.0) -> None:
+    """Open ``page`` in headless Chromium (a new empty profile, no network
+    services, software WebGL) in a ``size`` (width, height) pixel window and
+    write a PNG of it to ``png`` (the blank band below the page's viewport,
+    which headless Chromium leaves for its absent window frame, cut off).
+    RuntimeError when Chromium is missing or fails."""
+    exe = find_chromium()
+    if exe is None:
+        raise RuntimeError("screenshot needs Chromium (Debian: apt-get install chromium)")
+    with tempfile.TemporaryDirectory(prefix="stablelego-chromium-") as profile:
+        tmp = os.path.join(profile, "shot.png")
+        cmd = [exe, "--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
+               "--disable-component-update", "--disable-sync", "--no-first-run", "--hide-scrollbars",
+               f"--user-data-dir={profile}", f"--window-size={size[0]},{size[1]}",
+               f"--virtual-time-budget={int(wait_ms)}", f"--screenshot={tmp}",
+               "file://" + os.path.abspath(page)]
+        try:
+            r = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout_s)
+        except subprocess.TimeoutExpired:
+            raise RuntimeError(f"{page}: Chromium did not finish in {timeout_s:g} s") from None
+        if r.returncode != 0 or not os.path.exists(tmp):
+            raise RuntimeError(f"{page}: Chromium failed ({r.returncode}): {r.stderr.strip()[-300:]}")
+        from matplotlib.image import imread, imsave
+
+        img = imread(tmp)
+    filled = np.nonzero((img[..., :3] < 0.99).any(axis=(1, 2)))[0]
+    img = img[: filled[-1] + 1] if filled.size else img
+    atomic_write(png, lambda fh: imsave(fh, img, format="png"), binary=True)
