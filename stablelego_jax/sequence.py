@@ -35,6 +35,7 @@ import numpy as np
 
 from .analysis import Analysis
 from .batch import analyze_many
+from .blas import one_blas_thread
 from .files import read_text
 from .layout import Layout, LayoutError, cells_of, make_layout
 from .model import Params
@@ -263,7 +264,8 @@ def _score(a: Analysis) -> float:
 
 
 def _solve(layouts: list, solver: str, params: Params) -> list:
-    res = analyze_many(layouts, solver, params=params)
+    with one_blas_thread():  # JAX's CPU LAPACK goes through OpenBLAS (see blas.py)
+        res = analyze_many(layouts, solver, params=params)
     for r in res:
         if isinstance(r, Exception):
             raise r

@@ -4,7 +4,7 @@ from __future__ import annotations
 import json
 import sys
 
-from .common import png_target, solver_for
+from .common import png_target, report_error, solver_for
 
 __all__ = ["add_parser", "cmd_analyze"]
 
@@ -54,7 +54,7 @@ def _baseline_summary(a) -> str:
 
 
 def cmd_analyze(args) -> int:
-    from ..analysis import analyze, error_message
+    from ..analysis import analyze
 
     if args.method != "ours" and solver_for(args) != "exact":
         print(f"error: --method {args.method} runs on the exact solver only (--solver exact)", file=sys.stderr)
@@ -83,11 +83,7 @@ def cmd_analyze(args) -> int:
                              note=_summary(a).splitlines()[0])
         except Exception as exc:  # one bad file must not stop the others
             failed += 1
-            msg = error_message(path, exc)
-            if args.json:
-                print(json.dumps({"file": path, "error": msg}), flush=True)
-            else:
-                print(f"error: {msg}", file=sys.stderr, flush=True)
+            report_error(path, exc, args.json)
             continue
         if args.json:
             rec = a.to_json()

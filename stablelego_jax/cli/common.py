@@ -1,9 +1,11 @@
 """Helpers shared by the subcommands: the solver choice and heat-map paths."""
 from __future__ import annotations
 
+import json
 import os
+import sys
 
-__all__ = ["solver_for", "png_target"]
+__all__ = ["solver_for", "png_target", "report_error"]
 
 
 def solver_for(args) -> str:
@@ -28,3 +30,15 @@ def png_target(png: str, path: str, many: bool, used: set, ext: str = ".png") ->
         name = f"{stem}-{k}{ext}"
     used.add(name)
     return os.path.join(png, name)
+
+
+def report_error(path: str, exc: Exception, as_json: bool) -> None:
+    """One line for a failed input: ``{"file", "error"}`` on stdout with
+    ``--json``, else ``error: ...`` on stderr."""
+    from ..analysis import error_message
+
+    msg = error_message(path, exc)
+    if as_json:
+        print(json.dumps({"file": path, "error": msg}), flush=True)
+    else:
+        print(f"error: {msg}", file=sys.stderr, flush=True)

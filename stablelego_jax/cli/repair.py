@@ -5,7 +5,8 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import sys
+
+from .common import report_error
 
 __all__ = ["add_parser", "cmd_repair"]
 
@@ -157,7 +158,6 @@ def _write(result, src: str, out: str, library) -> None:
 
 
 def cmd_repair(args) -> int:
-    from ..analysis import error_message
     from ..formats.reader import load_layout
     from ..layout import LayoutError
     from ..design.repair import RepairOptions, greedy_repair, repair
@@ -194,11 +194,7 @@ def cmd_repair(args) -> int:
                                     f"{result.added} brick(s) added")], args.html, title=f"{path}: repair")
             page = args.html
     except (LayoutError, OSError, ValueError, RuntimeError) as exc:
-        msg = error_message(path, exc)
-        if args.json:
-            print(json.dumps({"file": path, "error": msg}), flush=True)
-        else:
-            print(f"error: {msg}", file=sys.stderr, flush=True)
+        report_error(path, exc, args.json)
         return 1
     b, a = result.before, result.after
     if args.json:

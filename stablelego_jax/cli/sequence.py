@@ -5,7 +5,8 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
-import sys
+
+from .common import report_error
 
 __all__ = ["add_parser", "cmd_sequence"]
 
@@ -129,7 +130,6 @@ def _frames(res):
 
 
 def cmd_sequence(args) -> int:
-    from ..analysis import error_message
     from ..files import atomic_write_text
     from ..layout import LayoutError
     from ..sequence import analyze_sequence, plan_order
@@ -150,11 +150,7 @@ def cmd_sequence(args) -> int:
             atomic_write_text(args.save_order, json.dumps({"order": list(order.keys), "fixed": list(order.fixed)},
                                                           indent=1) + "\n")
     except (LayoutError, OSError, ValueError, RuntimeError) as exc:
-        msg = error_message(path, exc)
-        if args.json:
-            print(json.dumps({"file": path, "error": msg}), flush=True)
-        else:
-            print(f"error: {msg}", file=sys.stderr, flush=True)
+        report_error(path, exc, args.json)
         return 2
     if args.json:
         rec = res.to_json()

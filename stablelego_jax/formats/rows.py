@@ -20,6 +20,7 @@ import json
 import os
 from typing import Mapping
 
+from ..files import read_text
 from ..layout import Layout, LayoutError, Library
 from .reader import load_layout
 from .stablelego import as_library, parse_json_layout, parse_text_layout
@@ -71,22 +72,16 @@ def read_rows(path: str) -> list:
 
 def _read_jsonl(path: str) -> list:
     rows = []
-    try:
-        with open(path, encoding="utf-8") as fh:
-            for lineno, line in enumerate(fh, start=1):
-                if not line.strip():
-                    continue
-                try:
-                    rec = json.loads(line)
-                except json.JSONDecodeError as exc:
-                    raise LayoutError(path, f"line {lineno}: not valid JSON ({exc.msg})") from None
-                if not isinstance(rec, dict):
-                    raise LayoutError(path, f"line {lineno}: a row must be a JSON object")
-                rows.append(rec)
-    except UnicodeDecodeError:
-        raise LayoutError(path, "file is not UTF-8 text") from None
-    except OSError as exc:
-        raise LayoutError(path, f"cannot read: {exc.strerror}") from None
+    for lineno, line in enumerate(read_text(path).splitlines(), start=1):
+        if not line.strip():
+            continue
+        try:
+            rec = json.loads(line)
+        except json.JSONDecodeError as exc:
+            raise LayoutError(path, f"line {lineno}: not valid JSON ({exc.msg})") from None
+        if not isinstance(rec, dict):
+            raise LayoutError(path, f"line {lineno}: a row must be a JSON object")
+        rows.append(rec)
     return rows
 
 
