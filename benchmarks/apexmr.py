@@ -13,9 +13,13 @@ pillars from its ``env_setup``):
    call (``analyze_many``; cold = with compiles, warm = compiled solvers reused);
 2. with a press of N newtons at APEX-MR's press spot (a 1x2 load block, its own
    press model; its tool is a 2.2 kg block = 21.56 N) for N in a sweep, HiGHS
-   on every pressed prefix: a step is flagged when it stands unpressed and
+   on the pressed prefixes: a step is flagged when it stands unpressed and
    falls pressed; flags against the steps where APEX-MR used a supporting arm
-   (steps pressed from below are not modelled and left out);
+   (steps pressed from below are not modelled and left out). Forces are
+   tried from the largest down and a step that stands under one is taken to
+   stand under every smaller one: the loads a layout can carry (zero
+   residual, every drag below T) form a convex set holding the unpressed
+   load, so standing at 0 and at N means standing in between;
 3. at 21.56 N, the support pillars our search finds (JAX, batched) against
    APEX-MR's support cell.
 """
@@ -38,8 +42,12 @@ from stablelego_jax.files import atomic_write_text  # noqa: E402
 from stablelego_jax.formats.apexmr import read_apex_seq  # noqa: E402
 from stablelego_jax.sequence import BuildOrder, analyze_sequence, prefix_layouts, press_layout  # noqa: E402
 
-TASKS = ["big_chair", "bridge", "cliff", "faucet", "fish_high", "guitar", "stairs_rotated", "vessel"]
+TASKS = ["cliff", "faucet", "stairs_rotated", "guitar", "fish_high", "vessel", "bridge", "big_chair"]
 FORCES = [1.0, 2.0, 5.0, 10.0, 21.56, 40.0]
+
+
+def _log(msg: str) -> None:
+    print(msg, file=sys.stderr, flush=True)
 
 
 def order_of(task) -> BuildOrder:
@@ -56,6 +64,7 @@ def run_task(path: str) -> dict:
     t0 = time.perf_counter()
     exact = [analyze_layout(p, solver="exact") for p in prefixes]
     t_exact = time.perf_counter() - t0
+    _log(f"  {n} prefixes, HiGHS one by one {t_exact:.1f} s")
     timings = []
     for _ in range(2):
         st = ScoreStats()
@@ -63,25 +72,34 @@ def run_task(path: str) -> dict:
         with one_blas_thread():
             jx = analyze_many(prefixes, "jax", stats=st)
         timings.append((time.perf_counter() - t0, st.compile_s, st.compiles))
+        _log(f"  JAX batched {timings[-1][0]:.1f} s ({st.compiles} compiles, {st.compile_s:.1f} s)")
     agree = sum(a.stable == b.stable and a.weakest == b.weakest for a, b in zip(exact, jx))
     labels = sum(a.stable == b.stable for a, b in zip(exact, jx))
     # 2. pressed prefixes, HiGHS, per force
     modelled = [k for k in order.keys if k not in order.no_press]
     ref = {k for k in modelled if k in task.support}
+    falls_at = {N: set() for N in FORCES}
+    t0 = time.perf_counter()
+    n_pressed = 0
+    for p, k, a in zip(prefixes, order.keys, exact):
+        if not a.stable or k in order.no_press:
+            continue
+        for N in sorted(FORCES, reverse=True):
+            n_pressed += 1
+            if analyze_layout(press_layout(p, k, N, order)[0], solver="exact").stable:
+                break
+            falls_at[N].add(k)
+    t_sweep = time.perf_counter() - t0
+    _log(f"  press sweep: {n_pressed} HiGHS solves, {t_sweep:.1f} s")
     sweep = {}
     for N in FORCES:
-        flags = set()
-        for p, k, a in zip(prefixes, order.keys, exact):
-            lay, mode = press_layout(p, k, N, order)
-            if lay is None:
-                continue
-            if a.stable and not analyze_layout(lay, solver="exact").stable:
-                flags.add(k)
+        flags = falls_at[N]
         tp, fp, fn = len(flags & ref), len(flags - ref), len(ref - flags)
         sweep[N] = {"flagged": sorted(flags, key=int), "tp": tp, "fp": fp, "fn": fn,
                     "tn": len(modelled) - tp - fp - fn, "agree": len(modelled) - fp - fn}
     # 3. supports at 21.56 N (JAX batched)
     res = analyze_sequence(task.layout, order, press=21.56, solver="jax")
+    _log(f"  supports at 21.56 N: {res.n_solved} layouts, {res.time_s:.1f} s")
     sup = []
     for s in res.steps:
         if s.needs_support or s.key in ref:
@@ -95,7 +113,7 @@ def run_task(path: str) -> dict:
         "jax_label_agree": labels, "jax_full_agree": agree, "exact_s": t_exact,
         "jax_cold_s": timings[0][0], "jax_cold_compile_s": timings[0][1], "jax_compiles": timings[0][2],
         "jax_warm_s": timings[1][0], "jax_not_converged": sum(not a.converged for a in jx),
-        "sweep": sweep, "supports_21.56": sup, "support_time_s": res.time_s, "support_solved": res.n_solved,
+        "sweep": sweep, "sweep_solves": n_pressed, "sweep_s": t_sweep, "supports_21.56": sup, "support_time_s": res.time_s, "support_solved": res.n_solved,
     }
 
 
@@ -133,6 +151,7 @@ def main() -> int:
     results = []
     for t in args.tasks:
         p = os.path.join(steps, f"{t}_seq.json")
+        _log(t)
         t0 = time.perf_counter()
         results.append(run_task(p))
         print(f"{t}: {time.perf_counter() - t0:.1f} s", file=sys.stderr, flush=True)

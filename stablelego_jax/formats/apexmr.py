@@ -5,8 +5,8 @@ StableLego authors' lab) writes each task as a StableLego-style task graph
 whose keys ``"1" .. "n"`` are the build order, one brick a step, with the
 robot's press location (``press_x/y/z``, ``press_ori``: where its 1x2 press
 tool pushes the new brick down) and, where its planner used a second arm to
-hold the structure from below, the top of that support (``support_x/y/z``;
-``support_x == -1``: no support). Its ``z`` counts from 1 on the plate;
+hold the structure from below, that support's column and height
+(``support_x/y/z``; ``support_x == -1``: no support). Its ``z`` counts from 1 on the plate;
 layer = z - 1 here. The task's ``env_setup/env_setup_<task>.json`` places
 every inventory brick (``b<id>_<k>``) on the plate before the build; bricks
 that no step picks and that touch the structure through knobs are fixed
@@ -48,8 +48,11 @@ class ApexTask:
     keys (present before step 1); press: {step key: (x, y, layer, sx, sy)}
     cells of the press block on top of the new brick; press_from_below:
     steps pressed from below (press layer under the brick: not a load this
-    library can model); support: {step key: (x, y, layer)} top cell of
-    APEX-MR's support pillar, for the steps where it used one.
+    library can model); support: {step key: (x, y, layer)} for the steps
+    where APEX-MR used a support: the stud column of its pillar and the
+    highest layer it fills (its check puts support blocks in the empty cells
+    of that column from the plate up to that layer, the one under the
+    pressed brick).
     """
 
     layout: Layout
