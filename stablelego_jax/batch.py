@@ -32,7 +32,7 @@ from .analysis import analyze_baseline, error_message, make_analysis
 from .blas import one_blas_thread
 from .files import atomic_write, atomic_write_text
 from .formats.dataset import score_grid
-from .formats.reader import load_layout
+from .formats import rows
 from .model import Params, compile_layout
 from .progress import Progress
 from .solvers import admm, ipm
@@ -61,18 +61,22 @@ NOT_LAYOUTS = {"lego_library.json", "labels.json", "config.json", "meta.json", "
                "few_shot_examples.json"}
 
 
-def find_layouts(inputs: Sequence[str]) -> list[str]:
+def find_layouts(inputs: Sequence[str], id_column: str | None = None) -> list:
     """Expand ``inputs`` (files, folders of layout files, dataset folders with
-    one object per sub-folder) into layout paths, in a stable order.
+    one object per sub-folder, row files) into layout sources, in a stable
+    order: paths, and a :class:`~stablelego_jax.formats.rows.RowRef` per
+    row of a JSON-lines or Parquet file (named by row or ``id_column``).
 
     A folder holding ``task_graph.json`` is one dataset object; any other
-    folder is searched recursively for dataset objects and layout files.
-    A missing input is kept, so that it is reported as an error line.
+    folder is searched recursively for dataset objects, layout files and
+    Parquet files (JSON-lines files are read only when named, since results
+    files are JSON lines too). A missing input, or a row file that cannot be
+    read, is kept as a path, so that it is reported as an error line.
     """
-    out: list[str] = []
+    out: list = []
     for inp in inputs:
         if not os.path.isdir(inp):
-            out.append(inp)
+            out.extend(rows.expand(inp, id_column) if rows.is_row_file(inp) else [inp])
             continue
         for d, subdirs, files in os.walk(inp):
             subdirs[:] = sorted(s for s in subdirs if not s.startswith("."))
@@ -83,8 +87,10 @@ def find_layouts(inputs: Sequence[str]) -> list[str]:
             for f in sorted(files):
                 if f.endswith(LAYOUT_EXTS) and f not in NOT_LAYOUTS and not f.startswith("."):
                     out.append(os.path.join(d, f))
+                elif f.endswith(".parquet") and not f.startswith("."):
+                    out.extend(rows.expand(os.path.join(d, f), id_column))
     seen: set = set()
-    return [p for p in out if not (p in seen or seen.add(p))]
+    return [p for p in out if not (str(p) in seen or seen.add(str(p)))]
 
 
 def read_results(out: str, key: str = "file") -> dict:
@@ -345,6 +351,8 @@ def _score_files(
     first_cap: int = 1000,
     stream=None,
     method: str = "ours",
+    column: str | None = None,
+    id_column: str | None = None,
 ) -> ScoreStats:
     """Score every layout of ``inputs`` into the JSON-lines file ``out``
     (``score_files`` runs this with one OpenBLAS thread: :mod:`~stablelego_jax.blas`).
@@ -360,7 +368,10 @@ def _score_files(
     devices to shard each batch over; first_cap (ADMM only): iteration cap
     of a first pass, after which only uncertified layouts are solved again
     with the full budget (0: one pass); chunk: layouts read and grouped at a
-    time (bounds host memory). Returns run totals; files already in ``out``
+    time (bounds host memory); column / id_column: the layout and id columns
+    of JSON-lines and Parquet inputs (:mod:`~stablelego_jax.formats.rows`;
+    each row is one result line, ``file`` = ``FILE#ROW`` or ``FILE#ID``, with
+    ``row`` and ``id``). Returns run totals; files already in ``out``
     are skipped. The solving is :func:`iter_analyses`; lines are appended and
     flushed per solver call.
     """
@@ -371,9 +382,9 @@ def _score_files(
     t_run = time.perf_counter()
     if solver != "exact":
         _device_count(devices)  # refuse a bad count before reading anything
-    paths = find_layouts(inputs)
+    paths = find_layouts(inputs, id_column)
     done = read_results(out)
-    todo = [p for p in paths if p not in done]
+    todo = [p for p in paths if str(p) not in done]
     st = ScoreStats(total=len(paths), skipped=len(paths) - len(todo))
     bar = Progress(len(todo), stream=stream, enabled=progress, unit="layouts")
     d = os.path.dirname(os.path.abspath(out))
@@ -392,9 +403,9 @@ def _score_files(
             loaded, errs = [], []
             for p in part:
                 try:
-                    loaded.append((p, load_layout(p, library)))
+                    loaded.append((p, rows.load_source(p, library, column, id_column)))
                 except Exception as exc:  # a bad layout is reported, the run goes on
-                    errs.append({"file": p, "error": error_message(p, exc)})
+                    errs.append(dict(rows.result_fields(p), error=error_message(str(p), exc)))
             st.load_s += time.perf_counter() - t0
             if errs:
                 emit(errs)
@@ -406,12 +417,12 @@ def _score_files(
                 for i, a in part_done:
                     p, lay = loaded[i]
                     if isinstance(a, Exception):
-                        recs.append({"file": p, "error": error_message(p, a)})
+                        recs.append(dict(rows.result_fields(p), error=error_message(str(p), a)))
                         st.errors += 1
                         continue
-                    if write_scores and os.path.isdir(p) and a.scores:
+                    if write_scores and isinstance(p, str) and os.path.isdir(p) and a.scores:
                         _write_score_grid(p, lay, a.scores)
-                    rec = dict(a.to_json(), file=p)
+                    rec = dict(a.to_json(), **rows.result_fields(p))
                     if solver != "exact":
                         rec["iters"] = a.iters
                     recs.append(rec)

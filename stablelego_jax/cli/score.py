@@ -13,7 +13,7 @@ def add_parser(sub, methods, exact_methods) -> None:
         "score",
         help="score many layouts in batches into a JSON-lines file (resumable)",
         description="Score every layout of INPUT (files, folders of layout files, StableLego dataset folders "
-                    "with one object per sub-folder) into RESULTS, one JSON object per line as 'analyze "
+                    "with one object per sub-folder, JSON-lines and Parquet files of one layout a row) into RESULTS, one JSON object per line as 'analyze "
                     "--json'. Layouts are grouped by size and solved in vmap-ed batches sharded over the "
                     "local devices. Rerunning skips the layouts already in RESULTS.",
     )
@@ -31,6 +31,11 @@ def add_parser(sub, methods, exact_methods) -> None:
     sc.add_argument("--write-scores", action="store_true",
                     help="also write stability_score.npy beside each dataset object")
     sc.add_argument("--library", help="brick library JSON (default: the StableLego library)")
+    sc.add_argument("--column", default=None,
+                    help="layout column of JSON-lines / Parquet inputs (default: 'bricks', then 'layout'): "
+                         "a text layout or StableLego JSON per row")
+    sc.add_argument("--id-column", default=None,
+                    help="name each row's result FILE#ID by this column (default: FILE#ROW, 0-based)")
     sc.add_argument("--quiet", action="store_true", help="no progress bar")
     sc.set_defaults(func=cmd_score)
 
@@ -48,7 +53,7 @@ def cmd_score(args) -> int:
         st = score_files(
             args.inputs, args.out, solver=solver_for(args), batch=args.batch, devices=args.devices,
             write_scores=args.write_scores, library=args.library, progress=not args.quiet,
-            exact_method=args.exact_method, method=args.method,
+            exact_method=args.exact_method, method=args.method, column=args.column, id_column=args.id_column,
         )
     except (ValueError, OSError) as exc:
         print(f"error: {exc}", file=sys.stderr)
