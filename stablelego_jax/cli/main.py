@@ -33,7 +33,12 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv=None) -> int:
+    from ..blas import xla_cpu_flags
+
     args = build_parser().parse_args(argv)
+    # before JAX's backend starts (a no-op once it has, e.g. in tests):
+    # XLA's Eigen kernels on the calling thread (see stablelego_jax.blas)
+    xla_cpu_flags()
     return args.func(args)
 
 

@@ -28,6 +28,11 @@ def add_parser(sub, methods, exact_methods) -> None:
                     help="HiGHS method of --solver exact (default highs: HiGHS chooses)")
     sc.add_argument("--batch", type=int, default=64, help="most layouts per solver call (default 64)")
     sc.add_argument("--devices", default="all", help="'all' or the number of local devices to shard over")
+    sc.add_argument("--jobs", type=int, default=None,
+                    help="worker processes of the exact solver and the baselines (default: every core)")
+    sc.add_argument("--shard", default=None, metavar="K/N",
+                    help="score only part K of N (0-based) of the inputs, chosen by a hash of each name: "
+                         "N processes or hosts split a dataset with no coordination, each with its own --out")
     sc.add_argument("--write-scores", action="store_true",
                     help="also write stability_score.npy beside each dataset object")
     sc.add_argument("--library", help="brick library JSON (default: the StableLego library)")
@@ -49,11 +54,22 @@ def cmd_score(args) -> int:
     if args.method != "ours" and solver_for(args) != "exact":
         print(f"error: --method {args.method} runs on the exact solver only (--solver exact)", file=sys.stderr)
         return 2
+    from ..batch import cpu_cores, parse_shard
+
+    if args.jobs is not None and args.jobs < 1:
+        print("error: --jobs must be >= 1", file=sys.stderr)
+        return 2
+    try:
+        shard = parse_shard(args.shard) if args.shard else None
+    except ValueError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
     try:
         st = score_files(
             args.inputs, args.out, solver=solver_for(args), batch=args.batch, devices=args.devices,
             write_scores=args.write_scores, library=args.library, progress=not args.quiet,
             exact_method=args.exact_method, method=args.method, column=args.column, id_column=args.id_column,
+            jobs=args.jobs or cpu_cores(), shard=shard,
         )
     except (ValueError, OSError) as exc:
         print(f"error: {exc}", file=sys.stderr)
