@@ -1,6 +1,5 @@
 """Threads of the CPU backend: one OpenBLAS thread for JAX's CPU linear
-algebra, and XLA's CPU flags (no JAX import here, so the command line can
-set them before JAX starts).
+algebra, and XLA's CPU settings (made before JAX's backend starts).
 
 JAX's CPU LAPACK kernels (Cholesky, LU, triangular solves) call SciPy's
 bundled OpenBLAS. Its worker threads spin while they wait, and on a busy
@@ -12,13 +11,14 @@ quiet machine one thread was faster too (5.5 s against 8.1 s). :func:`one_blas_t
 sets the count to 1 for a block and restores it after; without SciPy's
 OpenBLAS (another build) it does nothing.
 
-:func:`xla_cpu_flags` sets ``XLA_FLAGS`` for this process before JAX's
-backend starts: XLA's CPU runtime can deadlock in a ``vmap``-ed solve that
-runs its Eigen thread pool (seen twice in batched runs of ``score`` on this
-machine: every pool thread idle, the main thread waiting in
-``device_get``), so the command line runs XLA's Eigen kernels on the
-calling thread, and uses the cores through host devices instead (one per
-core, each its own share of a batch).
+:func:`xla_cpu_flags` configures XLA's CPU backend for this process
+before JAX starts it: computations run inline on the calling thread
+(JAX's ``jax_cpu_enable_async_dispatch`` off). Batched ``score`` runs hung
+three times on this machine (0 CPU, the main thread waiting forever in
+``device_get`` for an asynchronously dispatched computation: twice with
+XLA's Eigen thread pool on, once with it off, so the Eigen flag is not the
+cause); inline dispatch removes the waiting step. It is a mitigation, not a
+proven fix: the hang is rare and was not reproduced on demand.
 """
 from __future__ import annotations
 
@@ -28,15 +28,20 @@ import functools
 __all__ = ["one_blas_thread", "openblas_library", "xla_cpu_flags"]
 
 
-def xla_cpu_flags(host_devices: int | None = None, eigen_threads: bool = False) -> str:
-    """Add XLA CPU flags to ``XLA_FLAGS`` in this process's environment and
-    return the result: ``--xla_cpu_multi_thread_eigen=false`` unless
-    ``eigen_threads``, and ``--xla_force_host_platform_device_count``
-    = ``host_devices`` when given. Flags the user already set win. Takes
-    effect only if JAX's backend has not started yet (call it before the
-    first JAX computation)."""
+def xla_cpu_flags(host_devices: int | None = None, eigen_threads: bool = True) -> str:
+    """Configure XLA's CPU backend through the environment, before JAX's
+    backend starts (a no-op after; it imports JAX): inline dispatch
+    (``jax_cpu_enable_async_dispatch`` off, unless the environment sets
+    ``JAX_CPU_ENABLE_ASYNC_DISPATCH=true``), ``--xla_cpu_multi_thread_eigen=false`` unless
+    ``eigen_threads``, and ``--xla_force_host_platform_device_count`` =
+    ``host_devices`` when given. Settings the user made win. Returns
+    ``XLA_FLAGS``."""
     import os
 
+    if os.environ.get("JAX_CPU_ENABLE_ASYNC_DISPATCH", "false").lower() in ("0", "false"):
+        import jax
+
+        jax.config.update("jax_cpu_enable_async_dispatch", False)
     flags = os.environ.get("XLA_FLAGS", "").split()
     have = {f.split("=")[0] for f in flags}
     if not eigen_threads and "--xla_cpu_multi_thread_eigen" not in have:

@@ -218,15 +218,21 @@ def test_all_bad(tmp_path, capsys):
 
 def test_unexpected_exception_is_reported_per_file(tmp_path, capsys, monkeypatch):
     import stablelego_jax.analysis as api
+    import stablelego_jax.batch as batch
 
-    real = api.analyze
+    real = api.analyze_layout
 
-    def flaky(path, **kw):
-        if path == STAIR_20:
+    def flaky(layout, **kw):
+        if layout.source == STAIR_20:
             raise RuntimeError("solver exploded")
-        return real(path, **kw)
+        return real(layout, **kw)
 
-    monkeypatch.setattr(api, "analyze", flaky)
+    def batch_fails(*a, **kw):
+        raise RuntimeError("solver exploded")
+
+    # the batched call fails; analyze solves each file on its own, and only STAIR_20 fails
+    monkeypatch.setattr(batch, "analyze_many", batch_fails)
+    monkeypatch.setattr(api, "analyze_layout", flaky)
     rc, out, _ = _run(capsys, STAIR_20, STAIR_19, "--solver", "exact", "--json")
     assert rc == 1
     r_bad, r_good = _json_lines(out)

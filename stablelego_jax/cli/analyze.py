@@ -53,9 +53,55 @@ def _baseline_summary(a) -> str:
     return "\n".join(lines)
 
 
-def cmd_analyze(args) -> int:
-    from ..analysis import analyze
+#: files read and solved together by one batched call of ``analyze`` (bounds memory)
+CHUNK = 64
 
+
+def _analyses(args):
+    """(path, Analysis or exception) for every file, in input order. One
+    file: the single-layout solver; several: read ``CHUNK`` at a time and
+    solved in one batched call per chunk (:func:`~stablelego_jax.batch.analyze_many`:
+    one compiled solver per size bucket instead of one per file; the exact
+    solver in a pool of worker processes)."""
+    from ..analysis import analyze, analyze_layout
+
+    solver = solver_for(args)
+    if len(args.files) == 1:
+        path = args.files[0]
+        try:
+            yield path, analyze(path, solver=solver, library=args.library, method=args.method)
+        except Exception as exc:
+            yield path, exc
+        return
+    from ..batch import analyze_many, cpu_cores
+    from ..blas import one_blas_thread
+    from ..formats.reader import load_layout
+
+    for c0 in range(0, len(args.files), CHUNK):
+        part = args.files[c0: c0 + CHUNK]
+        loaded: list = []
+        for path in part:
+            try:
+                loaded.append(load_layout(path, args.library))
+            except Exception as exc:
+                loaded.append(exc)
+        good = [i for i, x in enumerate(loaded) if not isinstance(x, Exception)]
+        try:
+            with one_blas_thread():
+                res = analyze_many([loaded[i] for i in good], solver, method=args.method, jobs=cpu_cores())
+        except Exception:  # a failure inside the batched call: one file at a time, so only its file fails
+            res = []
+            for i in good:
+                try:
+                    res.append(analyze_layout(loaded[i], solver=solver, method=args.method))
+                except Exception as exc:
+                    res.append(exc)
+        for i, a in zip(good, res):
+            loaded[i] = a
+        yield from zip(part, loaded)
+
+
+def cmd_analyze(args) -> int:
     if args.method != "ours" and solver_for(args) != "exact":
         print(f"error: --method {args.method} runs on the exact solver only (--solver exact)", file=sys.stderr)
         return 2
@@ -63,10 +109,11 @@ def cmd_analyze(args) -> int:
     failed = 0
     used: set = set()
     used_html: set = set()
-    for path in args.files:
+    for path, a in _analyses(args):
         png = page = None
         try:
-            a = analyze(path, solver=solver_for(args), library=args.library, method=args.method)
+            if isinstance(a, Exception):
+                raise a
             if args.png and not a.scores:  # a baseline's unsolvable layout has no scores
                 print(f"warning: {path}: no heat map, unsolvable under --method {args.method}", file=sys.stderr)
             elif args.png:

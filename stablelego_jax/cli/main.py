@@ -37,7 +37,7 @@ def main(argv=None) -> int:
 
     args = build_parser().parse_args(argv)
     # before JAX's backend starts (a no-op once it has, e.g. in tests):
-    # XLA's Eigen kernels on the calling thread (see stablelego_jax.blas)
+    # computations run inline on the calling thread (see stablelego_jax.blas)
     xla_cpu_flags()
     return args.func(args)
 
