@@ -10,7 +10,8 @@ __all__ = ["add_parser", "cmd_analyze"]
 
 
 def add_parser(sub, methods) -> None:
-    a = sub.add_parser("analyze", help="analyse layout files (StableLego JSON, text, dataset folders)")
+    a = sub.add_parser("analyze", help="analyse layout files (StableLego JSON, text, LDraw, dataset folders, "
+                                       "scenes of blocks and rotated bricks)")
     a.add_argument("files", nargs="+", metavar="FILE")
     a.add_argument("--library", help="brick library JSON (default: the StableLego library)")
     a.add_argument("--solver", choices=["jax", "admm", "exact"], default=None,
@@ -24,7 +25,20 @@ def add_parser(sub, methods) -> None:
     a.set_defaults(func=cmd_analyze)
 
 
-def _summary(a) -> str:
+def _support(a) -> dict:
+    """{block key: support score} of a scene's plain blocks (empty for
+    layouts of bricks; see :mod:`stablelego_jax.support`)."""
+    from ..scene import BLOCK, Scene
+
+    if not isinstance(a.layout, Scene) or not (a.layout.kind == BLOCK).any() or a.method != "ours":
+        return {}
+    from ..support import support_scores
+
+    s = support_scores(a.layout, a.model, a.forces)
+    return {k: float(v) for k, v, b in zip(a.layout.keys, s, a.layout.kind == BLOCK) if b}
+
+
+def _summary(a, support: dict | None = None) -> str:
     if getattr(a, "method", "ours") != "ours":
         return _baseline_summary(a)
     lines = [
@@ -36,6 +50,10 @@ def _summary(a) -> str:
     if failing:
         shown = ", ".join(repr(k) for k in failing[:10]) + (" ..." if len(failing) > 10 else "")
         lines.append(f"  failing bricks ({len(failing)}): {shown}")
+    if support:
+        k = max(support, key=support.get)
+        lines.append(f"  support margin: highest {support[k]:.4f} at block {k!r} "
+                     "(0: load at the middle of its support, 1: at the edge)")
     return "\n".join(lines)
 
 
@@ -67,11 +85,19 @@ def cmd_analyze(args) -> int:
             if args.png and not a.scores:  # a baseline's unsolvable layout has no scores
                 print(f"warning: {path}: no heat map, unsolvable under --method {args.method}", file=sys.stderr)
             elif args.png:
-                from ..render import render_heatmap
+                from ..scene import Scene
 
                 scores = [a.scores[k] for k in a.layout.keys]
                 png = png_target(args.png, path, many, used)
-                render_heatmap(a.layout, scores, png)
+                if isinstance(a.layout, Scene):
+                    from ..render_scene import render_scene
+
+                    render_scene(a.layout, scores, png)
+                else:
+                    from ..render import render_heatmap
+
+                    render_heatmap(a.layout, scores, png)
+            support = _support(a)
         except Exception as exc:  # one bad file must not stop the others
             failed += 1
             msg = error_message(path, exc)
@@ -85,9 +111,11 @@ def cmd_analyze(args) -> int:
             rec["file"] = path  # the argument as given (a dataset folder, not its task_graph.json)
             if png is not None:
                 rec["png"] = png
+            if support:
+                rec["support"] = {k: round(v, 6) for k, v in support.items()}
             print(json.dumps(rec), flush=True)
         else:
-            print(_summary(a) + (f"\n  heat map: {png}" if png is not None else ""), flush=True)
+            print(_summary(a, support) + (f"\n  heat map: {png}" if png is not None else ""), flush=True)
         if not a.converged:
             print(f"warning: {path}: solver did not converge (gap {a.gap:.2e}); scores are approximate",
                   file=sys.stderr, flush=True)

@@ -31,8 +31,10 @@ import numpy as np
 
 from ..files import atomic_write_text, read_text
 from ..layout import TABLE_I_MASS_KG, Layout, LayoutError, library_id_for, make_layout, table_i_bricks
+from ..scene import BLOCK, Scene
 
 __all__ = [
+    "yaw_matrix",
     "PARTS",
     "PART_SIZES",
     "LDU_STUD",
@@ -103,6 +105,8 @@ def layout_to_ldr(
     """
     if step not in ("layer", "brick", "none"):
         raise ValueError(f"step must be 'layer', 'brick' or 'none', got {step!r}")
+    if isinstance(layout, Scene):
+        return _scene_to_ldr(layout, color, colors, step, header, title, name, part_suffix)
     n = layout.n
     if colors is not None:
         colors = [int(c) for c in colors]
@@ -142,6 +146,75 @@ def layout_to_ldr(
     return "\n".join(lines) + "\n"
 
 
+def _header(source: str, title: str | None, name: str | None) -> list[str]:
+    src = source if source and not source.startswith("<") else ""
+    stem = os.path.splitext(os.path.basename(os.path.normpath(src)))[0] if src else "layout"
+    if stem == "task_graph":  # a dataset object: name it after its folder
+        stem = os.path.basename(os.path.dirname(os.path.abspath(src))) or stem
+    return [f"0 {title if title is not None else stem}", f"0 Name: {name if name is not None else stem + '.ldr'}",
+            "0 Author: stablelego-jax"]
+
+
+def yaw_matrix(yaw_deg: float) -> np.ndarray:
+    """The LDraw rotation (3x3, rows) of a part whose native x axis (its long
+    side) points along layout angle ``yaw_deg`` (degrees from +x towards +y;
+    layout x, y, z are LDraw X, Z, -Y)."""
+    t = math.radians(yaw_deg)
+    c, s = math.cos(t), math.sin(t)
+    return np.array([[c, 0.0, -s], [0.0, 1.0, 0.0], [s, 0.0, c]])
+
+
+def _num(v: float) -> str:
+    v = round(float(v), 9) + 0.0  # no -0.0, no 6.1e-17 for 0
+    return repr(v) if v != int(v) else str(int(v)) if abs(v) < 1e15 else repr(v)
+
+
+def _scene_to_ldr(scene: Scene, color, colors, step: str, header: bool, title, name, part_suffix: str) -> str:
+    """A scene of (possibly rotated) bricks -> LDraw text: each brick's
+    rotation matrix from its yaw (:func:`yaw_matrix`), its origin at its top
+    centre with the module's convention (X = 20 cx, Z = 20 cy, Y = -24 z);
+    plain blocks have no LDraw part (LayoutError naming the block)."""
+    n = scene.n
+    colors = [int(c) for c in colors] if colors is not None else [int(DEFAULT_COLOR if color is None else color)] * n
+    if len(colors) != n:
+        raise ValueError(f"colors must hold one code per brick ({n}), got {len(colors)}")
+    order = np.argsort(scene.pos[:, 2], kind="stable")
+    lines = _header(scene.source, title, name) if header else []
+    for out_i, i in enumerate(order.tolist()):
+        key = scene.keys[i]
+        if scene.kind[i] == BLOCK:
+            raise LayoutError(scene.source, "plain blocks have no LDraw part; export bricks only", key, what="block")
+        sx, sy, thick = (int(v) for v in scene.size[i])
+        dims = (min(sx, sy), max(sx, sy))
+        part = PARTS.get(dims) if thick == 3 else None
+        if part is None:
+            raise LayoutError(scene.source, f"{sx}x{sy} part {thick} plate heights high has no basic LDraw part "
+                                            f"(supported: {_SUPPORTED})", key)
+        meta = {}
+        if key != str(out_i + 1):
+            meta["key"] = key
+        m = float(scene.mass[i])
+        if not math.isclose(m, TABLE_I_MASS_KG[dims], rel_tol=1e-12, abs_tol=0.0):
+            meta["mass"] = m
+        bid, _ = library_id_for(sx, sy)
+        if scene.brick_id[i] != bid and not (scene.brick_id[i], bid) == ("", ""):
+            meta["brick_id"] = scene.brick_id[i]
+        yaw = float(scene.yaw[i])
+        if yaw != 0:
+            meta["yaw"] = yaw
+        if meta:
+            lines.append(_META + json.dumps(meta, separators=(",", ":")))
+        rot = yaw_matrix(yaw if sx >= sy else yaw + 90.0)
+        cx, cy, level = (float(v) for v in scene.pos[i])
+        X, Z, Y = LDU_STUD * cx, LDU_STUD * cy, -LDU_LAYER * level / 3
+        lines.append(f"1 {colors[i]} {_num(X)} {_num(Y)} {_num(Z)} {' '.join(_num(v) for v in rot.reshape(-1))} "
+                     f"{part}{part_suffix}")
+        last = out_i == n - 1 or scene.pos[order[out_i + 1], 2] != level
+        if step == "brick" or (step == "layer" and last):
+            lines.append("0 STEP")
+    return "\n".join(lines) + "\n"
+
+
 def _meta_for(layout: Layout, i: int, out_i: int, dims) -> dict:
     """The facts of brick i that the part line cannot carry (empty if none)."""
     meta = {}
@@ -169,7 +242,7 @@ def write_ldr(layout: Layout, path: str, **kwargs) -> None:
     try:
         text = layout_to_ldr(layout, **kwargs)
     except LayoutError as exc:
-        raise LayoutError(path, exc.message, exc.key) from None
+        raise LayoutError(path, exc.message, exc.key, what=exc.what) from None
     atomic_write_text(path, text)
 
 
