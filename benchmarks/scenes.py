@@ -75,6 +75,8 @@ def main() -> None:
         row["stable"] += ex["stable"]
         row["label_agree"] += ex["stable"] == ja.stable
         row["body_agree"] += int((np.abs(sj - ex["scores"]) <= 1e-3).sum())
+        if ex["stable"]:
+            row["body_differ_stable"] += int((np.abs(sj - ex["scores"]) > 1e-3).sum())
         row["converged"] += ja.converged
         row["exact_ok"] += ex["ok"]
         if ex["stable"] != ja.stable:
@@ -90,8 +92,8 @@ def main() -> None:
     t_exact = {f: float(np.median([e["time"] for e, g in zip(exact, fams) if g == f])) for f in SCENE_FAMILIES}
     t_jax = {f: float(np.median([a.time_s for a, g in zip(jax_res, fams) if g == f])) for f in SCENE_FAMILIES}
 
-    print(f"| family | scenes | bodies | stable (exact) | labels agree | body scores agree (1e-3) | "
-          f"max |dscore| stable | max |dsupport| stable | exact ms / scene | jax ms / scene (batched) |")
+    print("| family | scenes | bodies | stable (exact) | labels agree | body scores agree (1e-3) | "
+          "max |dscore| stable | max |dsupport| stable | exact ms / scene | jax ms / scene (batched) |")
     print("|---|---|---|---|---|---|---|---|---|---|")
     tot = collections.Counter()
     for f in SCENE_FAMILIES:
@@ -103,6 +105,7 @@ def main() -> None:
     exact_total = sum(e["time"] for e in exact)
     print(f"| all | {tot['scenes']} | {tot['bodies']} | {tot['stable']} | {tot['label_agree']}/{tot['scenes']} | "
           f"{tot['body_agree']}/{tot['bodies']} | | | total {exact_total:.1f} s | total solve {st.solve_s:.1f} s |")
+    print(f"bodies whose scores differ by more than 1e-3 in stable scenes: {tot['body_differ_stable']}")
     print(f"JAX: {tot['converged']}/{tot['scenes']} converged; compile {st.compile_s:.1f} s ({st.compiles} shapes), "
           f"wall {wall_jax:.1f} s; exact: {tot['exact_ok']}/{tot['scenes']} solved")
     for b in bad:
