@@ -7,8 +7,12 @@ A :class:`Scene` holds ``n`` bodies of two kinds, as flat numpy arrays:
   plate heights (one third of a layer; a brick on layer z has bottom 3 z);
   ``size`` = studs along its own x and y and its height in plate heights
   (3 for a brick, 1 for a plate). It joins the parts above and below only
-  where their stud centres coincide; on the ground (bottom 0) it joins the
-  baseplate's studs, which sit at half-integer stud coordinates.
+  where their stud centres coincide and its bottom meets their top; on the
+  ground (bottom 0) it joins the baseplate's studs, which sit at
+  half-integer stud coordinates. Bottoms are whole plate heights in files of
+  this project; an LDraw model may put a part between them (on a part that
+  cannot be modelled, a bracket), and it then joins only parts at its own
+  heights.
 * ``BLOCK``: a plain box (a block, a box of a pallet, the pallet itself):
   ``pos`` = its centre and ``size`` = its extents along its own axes, in
   metres. The ground is the plane z = 0.
@@ -31,7 +35,7 @@ from .geometry import rect_corners, separation
 from .layout import MAX_COORD, MAX_SIZE, Layout, LayoutError
 
 __all__ = ["BRICK", "BLOCK", "STUD_M", "PLATE_M", "OVERLAP_TOL_M", "Scene", "make_scene", "boxes",
-           "scene_from_layout", "body_word", "candidate_pairs", "footprint_bounds"]
+           "scene_from_layout", "body_word", "candidate_pairs", "footprint_bounds", "overlapping_pairs"]
 
 BRICK, BLOCK = 0, 1
 #: SPEC stud pitch and plate height (a third of the 9.6 mm layer), metres:
@@ -129,9 +133,9 @@ def make_scene(keys: Sequence[str], kind, pos, size, yaw, mass, brick_id: Sequen
     duplicate keys, a NaN or infinite number, a non-positive block size or
     mass, a block below the ground (bottom under z = 0 by more than
     OVERLAP_TOL_M), a brick with a non-integer or bad stud count or height,
-    a non-integer or negative bottom level, a negative brick mass, a
-    negative friction, and two bodies whose volumes overlap by more than
-    OVERLAP_TOL_M (checked at the SPEC stud pitch and plate height).
+    a negative bottom level or brick mass, a negative friction, and two
+    bodies whose volumes overlap by more than OVERLAP_TOL_M (checked at the
+    SPEC stud pitch and plate height: :func:`overlapping_pairs`).
     """
     keys = tuple(str(k) for k in keys)
     n = len(keys)
@@ -178,8 +182,7 @@ def make_scene(keys: Sequence[str], kind, pos, size, yaw, mass, brick_id: Sequen
              lambda i: f"stud counts and height {size[i].tolist()} must be positive integers")
         fail(brk & (size[:, :2] > MAX_SIZE).any(1), lambda i: f"size {size[i, :2].tolist()} too large "
                                                               f"(at most {MAX_SIZE} studs)")
-        fail(brk & ((pos[:, 2] != np.round(pos[:, 2])) | (pos[:, 2] < 0)),
-             lambda i: f"bottom level {pos[i, 2]:g} must be an integer >= 0 (plate heights)")
+        fail(brk & (pos[:, 2] < 0), lambda i: f"bottom level {pos[i, 2]:g} must be >= 0 (plate heights)")
         fail(brk & (np.abs(pos) > MAX_COORD).any(1), lambda i: f"position {pos[i].tolist()} too large "
                                                                f"(at most {MAX_COORD})")
     if not (isinstance(friction, (int, float)) and math.isfinite(friction) and friction >= 0):
@@ -194,21 +197,27 @@ def make_scene(keys: Sequence[str], kind, pos, size, yaw, mass, brick_id: Sequen
     return scene
 
 
-def _check_overlap(scene: Scene) -> None:
-    """LayoutError on the first two bodies whose volumes overlap."""
+def overlapping_pairs(scene: Scene) -> np.ndarray:
+    """(p, 2) index pairs i < j of bodies whose volumes overlap by more than
+    OVERLAP_TOL_M (at the SPEC stud pitch and plate height), ordered by j."""
     centre, size, yaw = boxes(scene)
     lo, hi = footprint_bounds(centre, size, yaw)
     pairs = candidate_pairs(lo, hi, -OVERLAP_TOL_M)
     if not len(pairs):
-        return
+        return pairs
     i, j = pairs[:, 0], pairs[:, 1]
     zlap = np.minimum(hi[i, 2], hi[j, 2]) - np.maximum(lo[i, 2], lo[j, 2])
     pa = rect_corners(centre[i, :2], size[i, :2], yaw[i])
     pb = rect_corners(centre[j, :2], size[j, :2], yaw[j])
-    bad = (zlap > OVERLAP_TOL_M) & (separation(pa, pb) > OVERLAP_TOL_M)
-    if bad.any():
-        k = int(np.argmax(bad))
-        a, b = int(i[k]), int(j[k])
+    bad = pairs[(zlap > OVERLAP_TOL_M) & (separation(pa, pb) > OVERLAP_TOL_M)]
+    return bad[np.lexsort((bad[:, 0], bad[:, 1]))]
+
+
+def _check_overlap(scene: Scene) -> None:
+    """LayoutError on the first two bodies whose volumes overlap."""
+    bad = overlapping_pairs(scene)
+    if len(bad):
+        a, b = (int(v) for v in bad[0])
         raise LayoutError(scene.source, f"overlaps {body_word(scene.kind[a])} {scene.keys[a]!r}", scene.keys[b],
                           what=body_word(scene.kind[b]))
 

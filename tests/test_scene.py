@@ -44,8 +44,8 @@ def test_bricks_of_one_layer_must_not_overlap_and_need_integer_sizes():
         make_scene(["1", "2"], [BRICK] * 2, [[1, 2, 0], [2, 2, 0]], [[2, 4, 3]] * 2, [0, 45], [0.00216] * 2)
     with pytest.raises(LayoutError, match="brick '1': stud counts"):
         make_scene(["1"], [BRICK], [[1, 2, 0]], [[2.5, 4, 3]], [0], [0.001])
-    with pytest.raises(LayoutError, match="bottom level 1.5 must be an integer"):
-        make_scene(["1"], [BRICK], [[1, 2, 1.5]], [[2, 4, 3]], [0], [0.001])
+    with pytest.raises(LayoutError, match="bottom level -3 must be >= 0"):
+        make_scene(["1"], [BRICK], [[1, 2, -3]], [[2, 4, 3]], [0], [0.001])
     with pytest.raises(LayoutError, match="duplicate key"):
         make_scene(["1", "1"], [BRICK] * 2, [[1, 2, 0], [5, 2, 0]], [[2, 4, 3]] * 2, [0, 0], [0.001] * 2)
 

@@ -19,7 +19,8 @@ files bring them): ``"studs": [sx, sy]`` and ``"mass"`` in place of
 ``brick_id`` (``"part"``: an optional part number kept as the id),
 ``"thickness"``: the part's height in plate heights (3: a brick, the
 default; 1: a plate), ``"level"``: its bottom in plate heights in place of
-``z`` (a brick on layer z has level 3 z).
+``z`` (a brick on layer z has level 3 z; LDraw models may place a part
+between whole plate heights).
 
 Keys are strings, one namespace for blocks and bricks, reported back as
 given; errors name the file and the block or brick.
@@ -169,8 +170,8 @@ def _brick(b: Mapping, lib: Library, source: str, key: str):
         level = 3 * int(z)
     else:
         level = b["level"]
-        if not (_num(level) and level == int(level) and 0 <= level <= 3 * MAX_COORD):
-            raise LayoutError(source, f"level must be an integer >= 0 (plate heights), got {str(level)[:20]}", key)
+        if not (_num(level) and 0 <= level <= 3 * MAX_COORD):
+            raise LayoutError(source, f"level must be a number >= 0 (plate heights), got {str(level)[:20]}", key)
     if rotated:
         if "center" not in b:
             raise LayoutError(source, "a brick with a yaw needs a center [cx, cy] (studs)", key)
@@ -222,7 +223,8 @@ def scene_to_json_dict(scene: Scene, library: Library | None = None) -> dict:
 
 def _brick_entry(scene: Scene, i: int, lib: Library) -> dict:
     (cx, cy, level), (sx, sy, thick) = scene.pos[i].tolist(), scene.size[i].tolist()
-    sx, sy, thick, level = int(sx), int(sy), int(thick), int(level)
+    sx, sy, thick = int(sx), int(sy), int(thick)
+    level = int(level) if level == int(level) else level
     bid, m, yaw = scene.brick_id[i], float(scene.mass[i]), float(scene.yaw[i])
     d: dict = {}
     entry = lib.bricks.get(bid)
@@ -238,7 +240,7 @@ def _brick_entry(scene: Scene, i: int, lib: Library) -> dict:
         d.update(x=int(x0), y=int(y0))
     else:
         d.update(center=[cx, cy], yaw=yaw)
-    if level % 3 == 0:
+    if isinstance(level, int) and level % 3 == 0:
         d["z"] = level // 3
     else:
         d["level"] = level

@@ -14,7 +14,7 @@ from ..files import atomic_write_text, read_text
 from ..layout import Layout, LayoutError, Library
 from ..scene import Scene
 from .blocks import is_scene_json, parse_scene_json, scene_to_json_dict
-from .ldraw import read_ldr
+from .ldraw import LDRAW_EXTS, read_ldr
 from .stablelego import (
     TEXT_LINE,
     as_library,
@@ -28,14 +28,18 @@ from .stablelego import (
 __all__ = ["load_layout", "write_layout"]
 
 
-def load_layout(path: str, library: Library | str | None = None) -> Layout | Scene:
+def load_layout(path: str, library: Library | str | None = None, skip_unsupported: bool = False,
+                report: dict | None = None) -> Layout | Scene:
     """Read a layout file or dataset object folder, detecting the format.
 
     Args:
-      path: ``.json`` StableLego layout, ``.txt`` text layout, ``.ldr``
-        LDraw file of basic bricks (:mod:`stablelego_jax.formats.ldraw`), or a
-        folder holding ``task_graph.json``.
+      path: ``.json`` StableLego layout or scene, ``.txt`` text layout,
+        ``.ldr`` / ``.mpd`` LDraw model (:mod:`stablelego_jax.formats.ldraw`),
+        or a folder holding ``task_graph.json``.
       library: a Library, a library JSON path, or None for the default.
+      skip_unsupported, report: LDraw files only: leave out the parts that
+        cannot be modelled instead of refusing the file, and tell which in
+        ``report`` (see :func:`~stablelego_jax.formats.ldraw.parse_ldr`).
 
     A ``"blocks"`` document, or a StableLego layout with rotated bricks
     (``center`` / ``yaw``), gives a :class:`~stablelego_jax.scene.Scene`
@@ -52,8 +56,8 @@ def load_layout(path: str, library: Library | str | None = None) -> Layout | Sce
     if not os.path.exists(path):
         raise LayoutError(path, "no such file")
     ext = os.path.splitext(path)[1].lower()
-    if ext == ".ldr":
-        return read_ldr(path)
+    if ext in LDRAW_EXTS:
+        return read_ldr(path, skip_unsupported=skip_unsupported, report=report)
     if ext == ".json":
         return _parse_json(read_json(path), lib, path)
     text = read_text(path)
@@ -61,7 +65,7 @@ def load_layout(path: str, library: Library | str | None = None) -> Layout | Sce
         return parse_text_layout(text, source=path)
     if text.lstrip().startswith("{"):
         return _parse_json(read_json(path), lib, path)
-    raise LayoutError(path, "unknown layout format (expected .json, .txt, .ldr or a dataset folder)")
+    raise LayoutError(path, "unknown layout format (expected .json, .txt, .ldr, .mpd or a dataset folder)")
 
 
 def _parse_json(raw, lib: Library, path: str) -> Layout | Scene:
