@@ -18,9 +18,12 @@ line is dropped on the next run, which skips every file already present.
 """
 from __future__ import annotations
 
+import concurrent.futures
 import dataclasses
 import functools
+import hashlib
 import json
+import multiprocessing
 import os
 import time
 from typing import Iterable, Iterator, Sequence
@@ -32,7 +35,7 @@ from .analysis import analyze_baseline, error_message, make_analysis
 from .blas import one_blas_thread
 from .files import atomic_write, atomic_write_text
 from .formats.dataset import score_grid
-from .formats.reader import load_layout
+from .formats import rows
 from .model import Params, compile_layout
 from .progress import Progress
 from .solvers import admm, ipm
@@ -45,6 +48,8 @@ from .solvers.problem import (
     Problem,
     Solution,
     batch_rung,
+    layer_plan,
+    merge_plans,
     plan_problem,
     rung,
     solve_plan,
@@ -53,7 +58,7 @@ from .solvers.problem import (
 )
 
 __all__ = ["find_layouts", "read_results", "ScoreStats", "iter_analyses", "analyze_many", "score_files",
-           "batch_solver_fn", "batch_sizes", "plan_bytes"]
+           "batch_solver_fn", "batch_sizes", "plan_bytes", "parse_shard", "in_shard", "cpu_cores"]
 
 LAYOUT_EXTS = (".json", ".txt", ".ldr")
 # files that sit beside StableLego layouts but are not layouts
@@ -61,18 +66,22 @@ NOT_LAYOUTS = {"lego_library.json", "labels.json", "config.json", "meta.json", "
                "few_shot_examples.json"}
 
 
-def find_layouts(inputs: Sequence[str]) -> list[str]:
+def find_layouts(inputs: Sequence[str], id_column: str | None = None) -> list:
     """Expand ``inputs`` (files, folders of layout files, dataset folders with
-    one object per sub-folder) into layout paths, in a stable order.
+    one object per sub-folder, row files) into layout sources, in a stable
+    order: paths, and a :class:`~stablelego_jax.formats.rows.RowRef` per
+    row of a JSON-lines or Parquet file (named by row or ``id_column``).
 
     A folder holding ``task_graph.json`` is one dataset object; any other
-    folder is searched recursively for dataset objects and layout files.
-    A missing input is kept, so that it is reported as an error line.
+    folder is searched recursively for dataset objects, layout files and
+    Parquet files (JSON-lines files are read only when named, since results
+    files are JSON lines too). A missing input, or a row file that cannot be
+    read, is kept as a path, so that it is reported as an error line.
     """
-    out: list[str] = []
+    out: list = []
     for inp in inputs:
         if not os.path.isdir(inp):
-            out.append(inp)
+            out.extend(rows.expand(inp, id_column) if rows.is_row_file(inp) else [inp])
             continue
         for d, subdirs, files in os.walk(inp):
             subdirs[:] = sorted(s for s in subdirs if not s.startswith("."))
@@ -83,8 +92,43 @@ def find_layouts(inputs: Sequence[str]) -> list[str]:
             for f in sorted(files):
                 if f.endswith(LAYOUT_EXTS) and f not in NOT_LAYOUTS and not f.startswith("."):
                     out.append(os.path.join(d, f))
+                elif f.endswith(".parquet") and not f.startswith("."):
+                    out.extend(rows.expand(os.path.join(d, f), id_column))
     seen: set = set()
-    return [p for p in out if not (p in seen or seen.add(p))]
+    return [p for p in out if not (str(p) in seen or seen.add(str(p)))]
+
+
+#: fewest layouts worth a process pool (a spawned worker takes ~1 s to start)
+POOL_MIN = 32
+
+
+def cpu_cores() -> int:
+    """Cores this process may run on (its CPU affinity; ``os.cpu_count()`` elsewhere)."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # not Linux
+        return os.cpu_count() or 1
+
+
+def parse_shard(text: str) -> tuple[int, int]:
+    """``"K/N"`` -> (K, N), 0 <= K < N (0-based, as cluster job arrays number tasks)."""
+    try:
+        k, n = (int(x) for x in str(text).split("/"))
+    except ValueError:
+        raise ValueError(f"--shard {text}: expected K/N, e.g. 0/4") from None
+    if not (n >= 1 and 0 <= k < n):
+        raise ValueError(f"--shard {text}: need 0 <= K < N")
+    return k, n
+
+
+def in_shard(source, k: int, n: int) -> bool:
+    """Whether layout ``source`` (a path or row name, as :func:`find_layouts`
+    gives it) belongs to shard ``k`` of ``n``: the SHA-1 of its name modulo
+    ``n``. The same inputs named the same way give the same split on every
+    host and every run, with no coordination; the shards are disjoint and
+    cover every input."""
+    h = hashlib.sha1(str(source).encode("utf-8", "surrogateescape")).digest()
+    return int.from_bytes(h[:8], "big") % n == k
 
 
 def read_results(out: str, key: str = "file") -> dict:
@@ -205,6 +249,8 @@ def iter_analyses(
     first_cap: int = 1000,
     method: str = "ours",
     stats: ScoreStats | None = None,
+    jobs: int = 1,
+    merge: bool = True,
 ) -> Iterator[list[tuple[int, object]]]:
     """Analyse many in-memory layouts, batched: yields, per solver call, the
     list of ``(i, Analysis)`` for the ``layouts[i]`` it solved (batches do
@@ -216,7 +262,11 @@ def iter_analyses(
     group's largest column count and solved ``batch`` at a time by one
     compiled, ``vmap``-ed solver per (bucket, batch size), split over
     ``devices`` local devices; "exact": HiGHS one at a time (``method``:
-    "ours" or a baseline). ``first_cap`` (ADMM only): iteration cap of a
+    "ours" or a baseline), spread over ``jobs`` worker processes when
+    ``jobs`` > 1 (:func:`cpu_cores` for every core) and there are at least
+    ``POOL_MIN`` of them. ``merge`` (JAX): a bucket with few layouts is
+    solved in a larger bucket of the same call when that costs less than a
+    compile (:func:`~stablelego_jax.solvers.problem.merge_plans`). ``first_cap`` (ADMM only): iteration cap of a
     first pass, after which only uncertified layouts are solved again with
     the full budget. ``stats`` (a :class:`ScoreStats`) accumulates solve and
     compile time, compiles and non-converged counts. An Analysis of a JAX
@@ -236,16 +286,16 @@ def iter_analyses(
     if bad:
         yield bad
     if solver == "exact":
-        for i, lay, model in loaded:
-            t1 = time.perf_counter()
-            if method == "ours":
-                r = solve_exact(model, method=exact_method, scale=exact_scale)
-                a = make_analysis(lay, model, r.f, "exact", r.success, t1, objective=r.objective)
-            else:
-                a = analyze_baseline(lay, model, method, t1, exact_method=exact_method, scale=exact_scale)
-            st.solve_s += a.time_s
-            st.not_converged += not a.converged
-            yield [(i, a)]
+        jobs = min(max(1, int(jobs)), len(loaded))
+        if jobs <= 1 or len(loaded) < POOL_MIN:
+            parts = ([(i, a)] for i, a in _exact_items(loaded, method, exact_method, exact_scale))
+        else:
+            parts = _exact_pool(loaded, jobs, method, exact_method, exact_scale)
+        for part in parts:
+            for _, a in part:
+                st.solve_s += a.time_s
+                st.not_converged += not a.converged
+            yield part
         return
     if opts is None:
         opts = ipm.IPMOptions() if solver == "jax" else admm.SolverOptions()
@@ -274,6 +324,14 @@ def iter_analyses(
     for item in loaded:
         key = solve_plan(item[2]) if solver == "jax" else ("dense", rung(item[2].n, MIN_BRICKS))
         groups.setdefault(key, []).append(item)
+    if solver == "jax" and merge:
+        # small buckets join a larger one when that costs less than a compile
+        into = merge_plans({k: [(rung(it[2].n, MIN_BRICKS), *layer_plan(it[2])) for it in v]
+                            for k, v in groups.items()})
+        merged: dict = {}
+        for k, v in groups.items():
+            merged.setdefault(into[k], []).extend(v)
+        groups = merged
     for key in sorted(groups):
         items = groups[key]
         m_pad = rung(max(it[2].m for it in items), MIN_COLUMNS)
@@ -318,6 +376,46 @@ def iter_analyses(
             pending = retry
 
 
+def _exact_items(items, method, exact_method, exact_scale) -> list:
+    """[(i, Analysis)] of compiled ``items`` ((i, layout, model)) solved by
+    HiGHS one at a time (``method``: ours or a baseline)."""
+    out = []
+    for i, lay, model in items:
+        t1 = time.perf_counter()
+        if method == "ours":
+            r = solve_exact(model, method=exact_method, scale=exact_scale)
+            a = make_analysis(lay, model, r.f, "exact", r.success, t1, objective=r.objective)
+        else:
+            a = analyze_baseline(lay, model, method, t1, exact_method=exact_method, scale=exact_scale)
+        out.append((i, a))
+    return out
+
+
+def _ignore_sigint() -> None:
+    """Worker initialiser: Ctrl-C is the parent's to handle (one line, no
+    traceback per worker); the parent shuts the pool down."""
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+def _exact_pool(items, jobs, method, exact_method, exact_scale) -> Iterator[list]:
+    """:func:`_exact_items` over ``jobs`` spawned worker processes (spawned,
+    not forked: the parent may hold JAX's threads), in parts of a few
+    layouts, yielded as they finish. Each worker runs HiGHS on one core."""
+    size = max(1, min(16, len(items) // (4 * jobs)))
+    parts = [items[k: k + size] for k in range(0, len(items), size)]
+    ctx = multiprocessing.get_context("spawn")
+    with concurrent.futures.ProcessPoolExecutor(jobs, mp_context=ctx, initializer=_ignore_sigint) as pool:
+        futs = [pool.submit(_exact_items, part, method, exact_method, exact_scale) for part in parts]
+        try:
+            for fut in concurrent.futures.as_completed(futs):
+                yield fut.result()
+        finally:
+            for fut in futs:
+                fut.cancel()
+
+
 def analyze_many(layouts: Sequence, solver: str = "jax", **kwargs) -> list:
     """:func:`iter_analyses` collected in input order: one Analysis (or the
     exception of a layout that cannot be compiled) per layout."""
@@ -345,6 +443,10 @@ def _score_files(
     first_cap: int = 1000,
     stream=None,
     method: str = "ours",
+    column: str | None = None,
+    id_column: str | None = None,
+    jobs: int = 1,
+    shard: tuple[int, int] | None = None,
 ) -> ScoreStats:
     """Score every layout of ``inputs`` into the JSON-lines file ``out``
     (``score_files`` runs this with one OpenBLAS thread: :mod:`~stablelego_jax.blas`).
@@ -360,7 +462,13 @@ def _score_files(
     devices to shard each batch over; first_cap (ADMM only): iteration cap
     of a first pass, after which only uncertified layouts are solved again
     with the full budget (0: one pass); chunk: layouts read and grouped at a
-    time (bounds host memory). Returns run totals; files already in ``out``
+    time (bounds host memory); column / id_column: the layout and id columns
+    of JSON-lines and Parquet inputs (:mod:`~stablelego_jax.formats.rows`;
+    each row is one result line, ``file`` = ``FILE#ROW`` or ``FILE#ID``, with
+    ``row`` and ``id``); jobs: worker processes of the exact solver and the
+    baselines (:func:`iter_analyses`); shard: (K, N) scores only the inputs of
+    shard K of N (:func:`in_shard`), so N processes or hosts split a dataset
+    with no coordination (each its own ``out``). Returns run totals; files already in ``out``
     are skipped. The solving is :func:`iter_analyses`; lines are appended and
     flushed per solver call.
     """
@@ -371,9 +479,11 @@ def _score_files(
     t_run = time.perf_counter()
     if solver != "exact":
         _device_count(devices)  # refuse a bad count before reading anything
-    paths = find_layouts(inputs)
+    paths = find_layouts(inputs, id_column)
+    if shard is not None:
+        paths = [p for p in paths if in_shard(p, *shard)]
     done = read_results(out)
-    todo = [p for p in paths if p not in done]
+    todo = [p for p in paths if str(p) not in done]
     st = ScoreStats(total=len(paths), skipped=len(paths) - len(todo))
     bar = Progress(len(todo), stream=stream, enabled=progress, unit="layouts")
     d = os.path.dirname(os.path.abspath(out))
@@ -392,26 +502,26 @@ def _score_files(
             loaded, errs = [], []
             for p in part:
                 try:
-                    loaded.append((p, load_layout(p, library)))
+                    loaded.append((p, rows.load_source(p, library, column, id_column)))
                 except Exception as exc:  # a bad layout is reported, the run goes on
-                    errs.append({"file": p, "error": error_message(p, exc)})
+                    errs.append(dict(rows.result_fields(p), error=error_message(str(p), exc)))
             st.load_s += time.perf_counter() - t0
             if errs:
                 emit(errs)
                 st.errors += len(errs)
                 bar.advance(len(errs))
             for part_done in iter_analyses([lay for _, lay in loaded], solver, params, opts, batch, devices,
-                                           exact_method, exact_scale, first_cap, method, stats=st):
+                                           exact_method, exact_scale, first_cap, method, stats=st, jobs=jobs):
                 recs = []
                 for i, a in part_done:
                     p, lay = loaded[i]
                     if isinstance(a, Exception):
-                        recs.append({"file": p, "error": error_message(p, a)})
+                        recs.append(dict(rows.result_fields(p), error=error_message(str(p), a)))
                         st.errors += 1
                         continue
-                    if write_scores and os.path.isdir(p) and a.scores:
+                    if write_scores and isinstance(p, str) and os.path.isdir(p) and a.scores:
                         _write_score_grid(p, lay, a.scores)
-                    rec = dict(a.to_json(), file=p)
+                    rec = dict(a.to_json(), **rows.result_fields(p))
                     if solver != "exact":
                         rec["iters"] = a.iters
                     recs.append(rec)

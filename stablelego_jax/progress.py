@@ -1,79 +1,54 @@
-"""A plain-text progress bar on stderr (no dependency).
+"""Progress on stderr, drawn by tqdm.
 
-On a terminal the bar line is redrawn in place while an item runs, and each
-finished item leaves one line; elsewhere (logs, pipes) only the finished
-lines are written, so a log file stays readable.
+:class:`Progress` is the small interface the commands use (``start`` /
+``done`` per item, or ``advance`` for many small items); the bar itself,
+its rate, ETA and terminal handling are tqdm's. Off a terminal (logs,
+pipes) the bar is redrawn at most every 10 s, and each finished item's
+message is a line of its own either way.
 """
 from __future__ import annotations
 
 import sys
 import time
 
+from tqdm import tqdm
+
 __all__ = ["Progress"]
 
 
 class Progress:
     """``start(label)`` before an item, ``done(message)`` after it; or, for
-    many small items, ``advance(k)`` (no line per item)."""
+    many small items, ``advance(k)`` (no line per item). ``close()`` ends
+    the bar with a ``done: k/n in t s`` line."""
 
-    def __init__(self, total: int, stream=None, width: int = 24, enabled: bool = True, unit: str = "items"):
+    def __init__(self, total: int, stream=None, enabled: bool = True, unit: str = "items"):
         self.total = max(int(total), 0)
         self.stream = sys.stderr if stream is None else stream
-        self.width = int(width)
         self.enabled = bool(enabled)
-        self.unit = unit
         self.count = 0
         self.t0 = time.perf_counter()
-        self._last = 0.0
         try:
-            self.tty = bool(self.stream.isatty())
+            tty = bool(self.stream.isatty())
         except (AttributeError, ValueError):
-            self.tty = False
-
-    def _bar(self, k: int) -> str:
-        n = self.total or 1
-        fill = int(round(self.width * min(k, n) / n))
-        w = len(str(self.total))
-        return f"[{'#' * fill}{'.' * (self.width - fill)}] {k:>{w}}/{self.total}"
-
-    def _eta(self) -> str:
-        if not self.count or self.count >= self.total:
-            return ""
-        el = time.perf_counter() - self.t0
-        return f" eta {el / self.count * (self.total - self.count):.0f}s"
+            tty = False
+        self.bar = tqdm(total=self.total, file=self.stream, unit=f" {unit}", disable=not self.enabled,
+                        mininterval=0.5 if tty else 10.0, ascii=not tty, dynamic_ncols=tty, leave=False)
 
     def start(self, label: str) -> None:
-        if self.enabled and self.tty:
-            self.stream.write(f"\r\033[K{self._bar(self.count)} {label} ...{self._eta()}")
-            self.stream.flush()
+        self.bar.set_description_str(label)
 
     def done(self, message: str) -> None:
         self.count += 1
-        if not self.enabled:
-            return
-        prefix = "\r\033[K" if self.tty else ""
-        self.stream.write(f"{prefix}{self._bar(self.count)} {message}\n")
-        self.stream.flush()
+        if self.enabled:
+            self.bar.write(f"[{self.count}/{self.total}] {message}", file=self.stream)
+        self.bar.update(1)
 
     def advance(self, k: int = 1) -> None:
-        """Count ``k`` finished items; the bar with items/s and ETA is redrawn
-        in place on a terminal (at most every 0.5 s), else written as a line
-        at most every 10 s and at the end."""
         self.count += int(k)
-        if not self.enabled:
-            return
-        now = time.perf_counter()
-        if now - self._last < (0.5 if self.tty else 10.0) and self.count < self.total:
-            return
-        self._last = now
-        el = now - self.t0
-        line = f"{self._bar(self.count)} {self.count / el if el > 0 else 0.0:.1f} {self.unit}/s{self._eta()}"
-        self.stream.write(f"\r\033[K{line}" if self.tty else line + "\n")
-        self.stream.flush()
+        self.bar.update(int(k))
 
     def close(self) -> None:
+        self.bar.close()
         if self.enabled:
-            el = time.perf_counter() - self.t0
-            prefix = "\r\033[K" if self.tty else ""
-            self.stream.write(f"{prefix}done: {self.count}/{self.total} in {el:.1f} s\n")
+            self.stream.write(f"done: {self.count}/{self.total} in {time.perf_counter() - self.t0:.1f} s\n")
             self.stream.flush()

@@ -192,3 +192,55 @@ def test_analyze_many_in_input_order_with_errors_in_place():
         assert max(abs(a.scores[k] - ref.scores[k]) for k in ref.scores) < 1e-3
     ex = analyze_many(good, "exact")
     assert [a.stable for a in ex] == [a.stable for a in (res[0], res[2], res[3])]
+
+
+def test_shards_are_disjoint_cover_everything_and_stable():
+    from stablelego_jax.batch import in_shard, parse_shard
+
+    names = [f"data/obj_{i:04d}.json" for i in range(300)] + [f"rows.jsonl#{i}" for i in range(100)]
+    parts = [[p for p in names if in_shard(p, k, 3)] for k in range(3)]
+    assert sorted(sum(parts, [])) == sorted(names)  # disjoint and complete
+    assert all(60 < len(p) < 200 for p in parts)  # a hash, not a range
+    assert parts[1] == [p for p in names if in_shard(p, *parse_shard("1/3"))]
+    for bad in ("3/3", "-1/2", "1", "a/b", "0/0"):
+        with pytest.raises(ValueError, match="--shard"):
+            parse_shard(bad)
+
+
+def test_exact_pool_gives_the_same_answers(tmp_path):
+    from stablelego_jax.batch import POOL_MIN, analyze_many
+
+    lays = [stairs(k) for k in range(1, 17)] + [tower(k) for k in range(1, 17)]
+    assert len(lays) >= POOL_MIN
+    one = analyze_many(lays, "exact", jobs=1)
+    two = analyze_many(lays, "exact", jobs=2)
+    for a, b in zip(one, two):
+        assert (a.stable, a.weakest) == (b.stable, b.weakest)
+        assert a.scores == b.scores
+
+
+def test_two_shard_processes_split_a_folder(shard, tmp_path):
+    """Two processes on one machine, each ``--shard K/2`` with its own
+    results file: together every layout once, as one unsharded run."""
+    inputs = [str(shard / "layouts"), str(shard / "dataset")]
+    env = dict(os.environ, JAX_PLATFORMS="cpu")
+    outs = [tmp_path / f"part{k}.jsonl" for k in range(2)]
+    procs = [subprocess.Popen([sys.executable, "-m", "stablelego_jax.cli.main", "score", *inputs, "--out", str(o),
+                               "--solver", "exact", "--quiet", "--shard", f"{k}/2"], env=env)
+             for k, o in enumerate(outs)]
+    assert [p.wait(timeout=300) for p in procs] == [0, 0]
+    parts = [{r["file"]: r for r in _lines(o)} for o in outs]
+    assert not set(parts[0]) & set(parts[1])
+    whole = tmp_path / "whole.jsonl"
+    assert main(["score", *inputs, "--out", str(whole), "--solver", "exact", "--quiet", "--jobs", "1"]) == 0
+    ref = {r["file"]: r for r in _lines(whole)}
+    assert {**parts[0], **parts[1]}.keys() == ref.keys()
+    for f, r in {**parts[0], **parts[1]}.items():
+        assert (r["stable"], r["weakest"], r["scores"]) == (ref[f]["stable"], ref[f]["weakest"], ref[f]["scores"])
+
+
+def test_bad_shard_and_jobs_are_refused(tmp_path, capsys):
+    for extra in (["--shard", "2/2"], ["--jobs", "0"]):
+        assert main(["score", str(tmp_path), "--out", str(tmp_path / "r.jsonl"), *extra]) == 2
+        assert "error: --" in capsys.readouterr().err
+    assert not (tmp_path / "r.jsonl").exists()

@@ -12,11 +12,11 @@ PKG = "stablelego_jax"
 #: The pipeline, bottom up: a module may import its own layer and the ones below.
 LAYERS = [
     ("foundations", ("layout", "files", "runtime", "blas", "progress", "geometry", "scene")),
-    ("formats", ("formats", "render", "render_scene")),
+    ("formats", ("formats", "render", "render_scene", "render_html")),
     ("model", ("model", "soft", "score", "contacts", "support")),
     ("solvers", ("solvers",)),
     ("loss", ("loss",)),
-    ("analysis", ("analysis", "batch", "design")),
+    ("analysis", ("analysis", "batch", "design", "sequence")),
     ("generate, train", ("generate", "train")),
     ("cli", ("cli", "__main__")),
 ]

@@ -81,3 +81,27 @@ def test_pad_and_stack_soft():
         pad_soft(p, 8, 1024, 32)
     s = stack_soft([q, q])
     assert s.col_coef.shape == (2, 1024, 2, 6)
+
+
+def test_merge_plans_moves_small_buckets_when_cheaper_than_a_compile():
+    from stablelego_jax.solvers.problem import COMPILE_S, merge_plans, plan_seconds
+
+    sizes = {
+        ("dense", 16): [(16, 3, 6)] * 1000,
+        ("dense", 24): [(24, 4, 8)] * 3,  # few: join dense 32
+        ("dense", 32): [(32, 5, 8)] * 100,
+        ("layered", 12, 12): [(56, 9, 10)] * 2,  # few: join layered 16 x 16
+        ("layered", 16, 16): [(96, 14, 16)] * 40,
+        ("layered", 8, 40): [(200, 8, 33)] * 1,  # fits no other bucket: stays
+    }
+    into = merge_plans(sizes)
+    assert into[("dense", 24)] == ("dense", 32)
+    assert into[("layered", 12, 12)] == ("layered", 16, 16)
+    assert into[("layered", 8, 40)] == ("layered", 8, 40)
+    assert into[("dense", 16)] == ("dense", 16)  # 1000 layouts: moving them costs more than a compile
+    assert 1000 * (plan_seconds(("dense", 32)) - plan_seconds(("dense", 16))) > COMPILE_S
+    # every target is a bucket that stays, and its layouts fit there
+    for k, t in into.items():
+        assert into[t] == t
+    assert merge_plans(sizes, compile_s=0.0) == {k: k for k in sizes}
+    assert len(sizes[("dense", 32)]) == 100  # the caller's dict is untouched

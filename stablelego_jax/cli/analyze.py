@@ -1,10 +1,10 @@
-"""``stablelego analyze FILE... [--library L] [--solver jax|admm|exact] [--method ours|luo|eb] [--json] [--png P]``"""
+"""``stablelego analyze FILE... [--library L] [--solver jax|admm|exact] [--method ours|luo|eb] [--json] [--png P] [--html P]``"""
 from __future__ import annotations
 
 import json
 import sys
 
-from .common import png_target, solver_for
+from .common import png_target, report_error, solver_for
 
 __all__ = ["add_parser", "cmd_analyze"]
 
@@ -22,6 +22,8 @@ def add_parser(sub, methods) -> None:
                         "the baselines answer solvable or not (JSON 'solvable')")
     a.add_argument("--json", action="store_true", help="one JSON object per line")
     a.add_argument("--png", metavar="P", help="heat map PNG (a folder when several files are given)")
+    a.add_argument("--html", metavar="P",
+                   help="interactive 3D heat map page (a folder when several files are given)")
     a.set_defaults(func=cmd_analyze)
 
 
@@ -70,7 +72,8 @@ def _baseline_summary(a) -> str:
 
 
 def cmd_analyze(args) -> int:
-    from ..analysis import analyze, error_message
+    from ..analysis import analyze
+    from ..scene import Scene
 
     if args.method != "ours" and solver_for(args) != "exact":
         print(f"error: --method {args.method} runs on the exact solver only (--solver exact)", file=sys.stderr)
@@ -78,15 +81,14 @@ def cmd_analyze(args) -> int:
     many = len(args.files) > 1
     failed = 0
     used: set = set()
+    used_html: set = set()
     for path in args.files:
-        png = None
+        png = page = None
         try:
             a = analyze(path, solver=solver_for(args), library=args.library, method=args.method)
             if args.png and not a.scores:  # a baseline's unsolvable layout has no scores
                 print(f"warning: {path}: no heat map, unsolvable under --method {args.method}", file=sys.stderr)
             elif args.png:
-                from ..scene import Scene
-
                 scores = [a.scores[k] for k in a.layout.keys]
                 png = png_target(args.png, path, many, used)
                 if isinstance(a.layout, Scene):
@@ -97,25 +99,33 @@ def cmd_analyze(args) -> int:
                     from ..render import render_heatmap
 
                     render_heatmap(a.layout, scores, png)
+            if args.html and a.scores and not isinstance(a.layout, Scene):
+                from ..render_html import html_heatmap
+
+                page = png_target(args.html, path, many, used_html, ext=".html")
+                html_heatmap(a.layout, [a.scores[k] for k in a.layout.keys], page, title=path,
+                             note=_summary(a).splitlines()[0])
+            elif args.html and a.scores:
+                print(f"warning: {path}: no 3D page for scenes (blocks, plates, turned bricks) yet; "
+                      "--png draws them", file=sys.stderr)
             support = _support(a)
         except Exception as exc:  # one bad file must not stop the others
             failed += 1
-            msg = error_message(path, exc)
-            if args.json:
-                print(json.dumps({"file": path, "error": msg}), flush=True)
-            else:
-                print(f"error: {msg}", file=sys.stderr, flush=True)
+            report_error(path, exc, args.json)
             continue
         if args.json:
             rec = a.to_json()
             rec["file"] = path  # the argument as given (a dataset folder, not its task_graph.json)
             if png is not None:
                 rec["png"] = png
+            if page is not None:
+                rec["html"] = page
             if support:
                 rec["support"] = {k: round(v, 6) for k, v in support.items()}
             print(json.dumps(rec), flush=True)
         else:
-            print(_summary(a, support) + (f"\n  heat map: {png}" if png is not None else ""), flush=True)
+            print(_summary(a, support) + (f"\n  heat map: {png}" if png is not None else "")
+                  + (f"\n  3D page: {page}" if page is not None else ""), flush=True)
         if not a.converged:
             print(f"warning: {path}: solver did not converge (gap {a.gap:.2e}); scores are approximate",
                   file=sys.stderr, flush=True)

@@ -1,9 +1,11 @@
 """Helpers shared by the subcommands: the solver choice and heat-map paths."""
 from __future__ import annotations
 
+import json
 import os
+import sys
 
-__all__ = ["solver_for", "png_target"]
+__all__ = ["solver_for", "png_target", "report_error"]
 
 
 def solver_for(args) -> str:
@@ -11,8 +13,8 @@ def solver_for(args) -> str:
     return args.solver or ("jax" if args.method == "ours" else "exact")
 
 
-def png_target(png: str, path: str, many: bool, used: set) -> str:
-    """PNG path for ``path``: ``png`` itself for one file, else ``png/<stem>.png``.
+def png_target(png: str, path: str, many: bool, used: set, ext: str = ".png") -> str:
+    """PNG (or ``ext``) path for ``path``: ``png`` itself for one file, else ``png/<stem>.png``.
 
     One file and ``png`` an existing folder (or ending in a separator) also
     gives ``png/<stem>.png``. Two inputs with the same stem get ``<stem>-2.png``,
@@ -22,9 +24,21 @@ def png_target(png: str, path: str, many: bool, used: set) -> str:
         return png
     os.makedirs(png, exist_ok=True)
     stem = os.path.splitext(os.path.basename(os.path.normpath(path)))[0] or "layout"
-    name, k = stem + ".png", 1
+    name, k = stem + ext, 1
     while name in used:
         k += 1
-        name = f"{stem}-{k}.png"
+        name = f"{stem}-{k}{ext}"
     used.add(name)
     return os.path.join(png, name)
+
+
+def report_error(path: str, exc: Exception, as_json: bool) -> None:
+    """One line for a failed input: ``{"file", "error"}`` on stdout with
+    ``--json``, else ``error: ...`` on stderr."""
+    from ..analysis import error_message
+
+    msg = error_message(path, exc)
+    if as_json:
+        print(json.dumps({"file": path, "error": msg}), flush=True)
+    else:
+        print(f"error: {msg}", file=sys.stderr, flush=True)

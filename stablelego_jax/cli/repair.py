@@ -1,11 +1,12 @@
-"""``stablelego repair IN --out OUT [--region bbox|shape|any] [--max-add K] [--allow-remove] [--png P]``:
+"""``stablelego repair IN --out OUT [--region bbox|shape|any] [--max-add K] [--allow-remove] [--png P] [--html P]``:
 the command line of :mod:`stablelego_jax.design.repair`."""
 from __future__ import annotations
 
 import argparse
 import json
 import os
-import sys
+
+from .common import report_error
 
 __all__ = ["add_parser", "cmd_repair"]
 
@@ -30,6 +31,7 @@ def add_parser(sub) -> None:
     r.add_argument("--allow-remove", action="store_true",
                    help="allow replacing a user brick by a longer one (otherwise user bricks are never touched)")
     r.add_argument("--png", metavar="P", help="before/after heat maps (PNG)")
+    r.add_argument("--html", metavar="P", help="before/after 3D heat map page (a slider between the two)")
     r.add_argument("--library", help="brick library JSON of IN (default: the StableLego library)")
     r.add_argument("--method", choices=["gradient", "greedy"], default="gradient",
                    help="gradient (default): rank candidates by the loss gradient; greedy: full solve of every one")
@@ -156,7 +158,6 @@ def _write(result, src: str, out: str, library) -> None:
 
 
 def cmd_repair(args) -> int:
-    from ..analysis import error_message
     from ..formats.reader import load_layout
     from ..layout import LayoutError
     from ..design.repair import RepairOptions, greedy_repair, repair
@@ -186,12 +187,19 @@ def cmd_repair(args) -> int:
             render_pair(b.layout, [b.scores[k] for k in b.layout.keys], a.layout, [a.scores[k] for k in a.layout.keys],
                         args.png, titles=("before", "after repair" if result.stable else "after (still unstable)"))
             png = args.png
-    except (LayoutError, OSError, ValueError) as exc:
-        msg = error_message(path, exc)
-        if args.json:
-            print(json.dumps({"file": path, "error": msg}), flush=True)
-        else:
-            print(f"error: {msg}", file=sys.stderr, flush=True)
+        page = None
+        if args.html:
+            from ..render_html import Frame, html_frames
+
+            b, a = result.before, result.after
+            html_frames([Frame(b.layout, [b.scores[k] for k in b.layout.keys], label="before",
+                               note=f"before: {'stable' if b.stable else 'UNSTABLE'}, weakest {b.weakest!r}"),
+                         Frame(a.layout, [a.scores[k] for k in a.layout.keys], label="after",
+                               note=f"after repair: {'stable' if a.stable else 'still UNSTABLE'}, "
+                                    f"{result.added} brick(s) added")], args.html, title=f"{path}: repair")
+            page = args.html
+    except (LayoutError, OSError, ValueError, RuntimeError) as exc:
+        report_error(path, exc, args.json)
         return 1
     b, a = result.before, result.after
     if args.json:
@@ -202,7 +210,7 @@ def cmd_repair(args) -> int:
                                                for c in result.changes
                                                for k, p, s in zip(c.keys, c.candidate.pos, c.candidate.size)],
             "removed": result.removed, "exact_calls": result.exact_calls, "soft_calls": result.soft_calls,
-            "time_s": round(result.time_s, 3), "method": result.method, "png": png,
+            "time_s": round(result.time_s, 3), "method": result.method, "png": png, "html": page,
         }), flush=True)
     else:
         n_fail = sum(s >= 1.0 for s in b.scores.values())
@@ -223,4 +231,6 @@ def cmd_repair(args) -> int:
             print(f"  wrote {args.out}")
         if png:
             print(f"  before/after: {png}")
+        if page:
+            print(f"  3D page: {page}")
     return 0 if result.stable else 1

@@ -13,7 +13,7 @@ def add_parser(sub, methods, exact_methods) -> None:
         "score",
         help="score many layouts in batches into a JSON-lines file (resumable)",
         description="Score every layout of INPUT (files, folders of layout files, StableLego dataset folders "
-                    "with one object per sub-folder) into RESULTS, one JSON object per line as 'analyze "
+                    "with one object per sub-folder, JSON-lines and Parquet files of one layout a row) into RESULTS, one JSON object per line as 'analyze "
                     "--json'. Layouts are grouped by size and solved in vmap-ed batches sharded over the "
                     "local devices. Rerunning skips the layouts already in RESULTS.",
     )
@@ -28,9 +28,19 @@ def add_parser(sub, methods, exact_methods) -> None:
                     help="HiGHS method of --solver exact (default highs: HiGHS chooses)")
     sc.add_argument("--batch", type=int, default=64, help="most layouts per solver call (default 64)")
     sc.add_argument("--devices", default="all", help="'all' or the number of local devices to shard over")
+    sc.add_argument("--jobs", type=int, default=None,
+                    help="worker processes of the exact solver and the baselines (default: every core)")
+    sc.add_argument("--shard", default=None, metavar="K/N",
+                    help="score only part K of N (0-based) of the inputs, chosen by a hash of each name: "
+                         "N processes or hosts split a dataset with no coordination, each with its own --out")
     sc.add_argument("--write-scores", action="store_true",
                     help="also write stability_score.npy beside each dataset object")
     sc.add_argument("--library", help="brick library JSON (default: the StableLego library)")
+    sc.add_argument("--column", default=None,
+                    help="layout column of JSON-lines / Parquet inputs (default: 'bricks', then 'layout'): "
+                         "a text layout or StableLego JSON per row")
+    sc.add_argument("--id-column", default=None,
+                    help="name each row's result FILE#ID by this column (default: FILE#ROW, 0-based)")
     sc.add_argument("--quiet", action="store_true", help="no progress bar")
     sc.set_defaults(func=cmd_score)
 
@@ -44,11 +54,22 @@ def cmd_score(args) -> int:
     if args.method != "ours" and solver_for(args) != "exact":
         print(f"error: --method {args.method} runs on the exact solver only (--solver exact)", file=sys.stderr)
         return 2
+    from ..batch import cpu_cores, parse_shard
+
+    if args.jobs is not None and args.jobs < 1:
+        print("error: --jobs must be >= 1", file=sys.stderr)
+        return 2
+    try:
+        shard = parse_shard(args.shard) if args.shard else None
+    except ValueError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
     try:
         st = score_files(
             args.inputs, args.out, solver=solver_for(args), batch=args.batch, devices=args.devices,
             write_scores=args.write_scores, library=args.library, progress=not args.quiet,
-            exact_method=args.exact_method, method=args.method,
+            exact_method=args.exact_method, method=args.method, column=args.column, id_column=args.id_column,
+            jobs=args.jobs or cpu_cores(), shard=shard,
         )
     except (ValueError, OSError) as exc:
         print(f"error: {exc}", file=sys.stderr)

@@ -252,9 +252,8 @@ def _system(prob: Problem, params: Params, opts: IPMOptions) -> dict:
         def msolve(v):
             return block_solve(C, Gf, v.reshape(L, k6)).reshape(n, 6)
 
-        dnu = msolve(r)
-        for _ in range(opts.refine):
-            dnu = dnu + msolve(r - Ez(hinv(f, Et(dnu))))
+        # iterative refinement against the exact operator (a loop, traced once)
+        dnu = jax.lax.fori_loop(0, opts.refine, lambda _, d: d + msolve(r - Ez(hinv(f, Et(d)))), msolve(r))
         dz = hinv(f, jax.tree_util.tree_map(lambda a, b: a - b, rhs1, Et(dnu)))
         return dz, dnu
 

@@ -16,6 +16,9 @@ from ..model import KNOB, SIDE, ForceModel, Params
 from ..soft import SoftProblem
 
 __all__ = [
+    "merge_plans",
+    "plan_seconds",
+    "COMPILE_S",
     "Problem",
     "Solution",
     "to_problem",
@@ -250,6 +253,55 @@ def solve_plan(model: ForceModel) -> tuple:
     if n_b > DENSE_MAX and Lp > 1 and 3 * Lp * Bp ** 3 < n_b ** 3 / 3:
         return ("layered", Lp, Bp)
     return ("dense", n_b)
+
+
+#: Seconds one compile of a batched interior-point solver takes on a CPU core
+#: (3.5-6 s measured for every shape, small or large: benchmarks/compile_time.py).
+COMPILE_S = 4.0
+
+
+def plan_seconds(key: tuple) -> float:
+    """Rough seconds one layout of bucket ``key`` takes in a batched solve
+    (fitted to batched CPU solves: dense 8/32/48 bricks 1.3/13/34 ms,
+    layered 16 x 16 143 ms): 1 ms plus 4 ns per flop of one factorisation
+    ((6 n)^3 / 3 dense, 3 L (6 B)^3 layered)."""
+    flops = (6 * key[1]) ** 3 / 3 if key[0] == "dense" else 3 * key[1] * (6 * key[2]) ** 3
+    return 1e-3 + 4e-9 * flops
+
+
+def _fits(key: tuple, size: tuple) -> bool:
+    """Whether a layout of (padded bricks, layers, slots per layer) ``size``
+    can be solved in bucket ``key``."""
+    n_b, L, B = size
+    return n_b <= key[1] if key[0] == "dense" else (L <= key[1] and B <= key[2])
+
+
+def merge_plans(sizes: dict, compile_s: float = COMPILE_S) -> dict:
+    """Fewer compiled shapes for one run: ``sizes`` maps each bucket key
+    (:func:`solve_plan`) to the (padded bricks, layers, slots per layer) of
+    its layouts; returns {key: key to solve it in}. A bucket moves into a
+    larger bucket of the same run (one its layouts fit in) when solving its
+    layouts there costs less extra time (:func:`plan_seconds`) than
+    ``compile_s``, one compile; the smallest buckets move first, each to the
+    cheapest target. With ``compile_s`` = 0 nothing moves."""
+    sizes = {k: list(v) for k, v in sizes.items()}
+    target = {k: k for k in sizes}
+    count = {k: len(v) for k, v in sizes.items()}
+    for k in sorted(sizes, key=lambda k: (count[k], plan_seconds(k))):
+        best, best_extra = None, compile_s
+        for t in sizes:
+            if t == k or target[t] != t or not all(_fits(t, sz) for sz in sizes[k]):
+                continue
+            extra = count[k] * (plan_seconds(t) - plan_seconds(k))
+            if extra < best_extra:
+                best, best_extra = t, extra
+        if best is not None:
+            for j in target:
+                if target[j] == k:
+                    target[j] = best
+            count[best] += count[k]
+            sizes[best] += sizes[k]
+    return target
 
 
 def plan_problem(model: ForceModel, key: tuple, m_pad: int, p_pad: int) -> tuple[ForceModel, Problem]:

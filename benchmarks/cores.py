@@ -1,0 +1,144 @@
+"""Every core, measured: ``stablelego score`` on one input set under several
+ways of using the cores (issue 17, item 1), each in its own process(es),
+first run (empty compilation cache) and second run (warm cache).
+
+Usage:
+  python benchmarks/cores.py [--inputs benchmarks/results/small500] [--configs a,b,...] [--runs 2]
+
+Configurations (``--configs``):
+  jax-eigen      JAX, one device, XLA's Eigen thread pool on (JAX's default)
+  jax-1dev       JAX, one device, Eigen kernels on the calling thread
+  jax-2dev       JAX, 2 host devices (one per core), each its share of a batch
+  jax-2proc      JAX, 2 processes at once (``--shard 0/2`` and ``1/2``), one device each
+  exact-1        HiGHS, one process
+  exact-2        HiGHS, ``--jobs 2`` (a pool of 2 worker processes)
+
+Each run is the real command line in a subprocess (``python -m
+stablelego_jax.cli.main score ...``) with its own cache folder
+(``STABLELEGO_CACHE_DIR``), so run 1 compiles everything and run 2 reads
+the compiled solvers from disk. Wall time is measured around the
+process(es); solve and compile time are the command's own summary line;
+peak memory is the child's max RSS (``os.wait4``). Labels and highest
+scores of every JAX run are compared with the exact run's.
+Writes ``benchmarks/results/cores.json``.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import re
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+ROOT = os.path.dirname(HERE)
+
+CONFIGS = {
+    "jax-eigen": dict(solver="jax", procs=1, xla="--xla_cpu_multi_thread_eigen=true", devices="1"),
+    "jax-1dev": dict(solver="jax", procs=1, xla="--xla_cpu_multi_thread_eigen=false", devices="1"),
+    "jax-2dev": dict(solver="jax", procs=1,
+                     xla="--xla_cpu_multi_thread_eigen=false --xla_force_host_platform_device_count=2", devices="2"),
+    "jax-2proc": dict(solver="jax", procs=2, xla="--xla_cpu_multi_thread_eigen=false", devices="1"),
+    "exact-1": dict(solver="exact", procs=1, jobs=1),
+    "exact-2": dict(solver="exact", procs=1, jobs=2),
+}
+SUMMARY = re.compile(r"solve ([\d.]+) s, compile ([\d.]+) s \((\d+) shapes\), wall ([\d.]+) s")
+
+
+def run_config(name: str, inputs: list, work: str, cache: str, run: int) -> dict:
+    cfg = CONFIGS[name]
+    env = dict(os.environ, STABLELEGO_CACHE_DIR=cache, JAX_PLATFORMS="cpu")
+    if "xla" in cfg:
+        env["XLA_FLAGS"] = cfg["xla"]
+    procs, outs = [], []
+    t0 = time.perf_counter()
+    for k in range(cfg["procs"]):
+        out = os.path.join(work, f"{name}-run{run}-{k}.jsonl")
+        if os.path.exists(out):
+            os.remove(out)
+        cmd = [sys.executable, "-m", "stablelego_jax.cli.main", "score", *inputs, "--out", out, "--quiet",
+               "--solver", cfg["solver"]]
+        if cfg["solver"] == "jax":
+            cmd += ["--devices", cfg["devices"]]
+        else:
+            cmd += ["--jobs", str(cfg["jobs"])]
+        if cfg["procs"] > 1:
+            cmd += ["--shard", f"{k}/{cfg['procs']}"]
+        procs.append(subprocess.Popen(cmd, env=env, cwd=ROOT, stderr=subprocess.PIPE, text=True))
+        outs.append(out)
+    rec = dict(config=name, run=run, solve_s=0.0, compile_s=0.0, shapes=0, peak_rss_mb=0.0, outs=outs)
+    for p in procs:
+        _, status, ru = os.wait4(p.pid, 0)
+        p.returncode = os.waitstatus_to_exitcode(status)
+        err = p.stderr.read()
+        m = SUMMARY.search(err)
+        if p.returncode not in (0, 1) or not m:
+            raise SystemExit(f"{name}: exit {p.returncode}\n{err[-2000:]}")
+        rec["solve_s"] += float(m.group(1))
+        rec["compile_s"] += float(m.group(2))
+        rec["shapes"] += int(m.group(3))
+        # ru_maxrss of a child: its own peak (KiB on Linux), not its children's
+        rec["peak_rss_mb"] = max(rec["peak_rss_mb"], ru.ru_maxrss / 1024.0)
+    rec["wall_s"] = time.perf_counter() - t0
+    return rec
+
+
+def results(paths: list) -> dict:
+    out = {}
+    for p in paths:
+        with open(p) as fh:
+            for line in fh:
+                r = json.loads(line)
+                out[r["file"]] = r
+    return out
+
+
+def agreement(ref: dict, got: dict) -> dict:
+    both = [k for k in ref if "error" not in ref[k] and k in got and "error" not in got[k]]
+    lab = sum(ref[k]["stable"] == got[k]["stable"] for k in both)
+    hi = sum(abs(max(ref[k]["scores"].values(), default=0) - max(got[k]["scores"].values(), default=0)) < 1e-3
+             for k in both)
+    return dict(compared=len(both), labels_agree=lab, highest_score_agree=hi)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--inputs", nargs="+", default=[os.path.join(HERE, "results", "small500")])
+    ap.add_argument("--configs", default=",".join(CONFIGS))
+    ap.add_argument("--runs", type=int, default=2, help="1: first run only; 2: first and warm")
+    ap.add_argument("--out", default=os.path.join(HERE, "results", "cores.json"))
+    args = ap.parse_args()
+    names = args.configs.split(",")
+    work = tempfile.mkdtemp(prefix="stablelego-cores-")
+    recs = []
+    try:
+        for name in names:
+            cache = os.path.join(work, f"cache-{name}")
+            for run in range(1, args.runs + 1):
+                rec = run_config(name, args.inputs, work, cache, run)
+                recs.append(rec)
+                print(f"{name:10s} run {run}: wall {rec['wall_s']:7.1f} s  solve {rec['solve_s']:7.1f} s  "
+                      f"compile {rec['compile_s']:7.1f} s ({rec['shapes']} shapes)  peak {rec['peak_rss_mb']:.0f} MB",
+                      flush=True)
+        ref = next((results(r["outs"]) for r in recs if r["config"].startswith("exact")), None)
+        for r in recs:
+            if ref is not None and not r["config"].startswith("exact"):
+                r.update(agreement(ref, results(r["outs"])))
+                print(f"{r['config']:10s} run {r['run']}: labels {r['labels_agree']}/{r['compared']}, "
+                      f"highest score (1e-3) {r['highest_score_agree']}/{r['compared']}")
+            del r["outs"]
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+    meta = dict(command="python benchmarks/cores.py " + " ".join(sys.argv[1:]), machine=platform.machine(),
+                cpus=os.cpu_count(), python=platform.python_version(), date=time.strftime("%Y-%m-%d"))
+    with open(args.out, "w") as fh:
+        json.dump(dict(meta=meta, runs=recs), fh, indent=1)
+
+
+if __name__ == "__main__":
+    main()
