@@ -1,6 +1,8 @@
 """Every command reads scenes (blocks, pallets, rotated bricks): analyze
 (labels of the paper's Sec. IV.E cases, support scores, heat maps), score,
-export (JSON as read, LDraw rotation matrices), repair (refused)."""
+export (JSON as read, LDraw rotation matrices), repair and sequence
+(refused); LDraw models with plates and parts that cannot be modelled
+(--skip-unsupported)."""
 import json
 import os
 
@@ -86,6 +88,47 @@ def test_repair_refuses_scenes(tmp_path, capsys):
     assert cli.main(["repair", src, "--out", str(tmp_path / "o.json")]) == 1
     assert "cannot be repaired yet" in capsys.readouterr().err
     assert not (tmp_path / "o.json").exists()
+
+
+def test_sequence_refuses_scenes_and_html_draws_grid_layouts_only(tmp_path, capsys):
+    src = os.path.join(EXT, "lego_single_knob.json")
+    assert cli.main(["sequence", src]) == 2  # as for any layout it cannot read
+    assert "cannot be sequenced yet" in capsys.readouterr().err
+    assert cli.main(["analyze", src, "--solver", "exact", "--html", str(tmp_path / "p.html")]) == 0
+    assert "no 3D page for scenes" in capsys.readouterr().err
+    assert not (tmp_path / "p.html").exists()
+
+
+# a 2x4 brick, a 2x4 plate on it, a brick on the plate, two slopes and a tile beside
+MODEL = """0 FILE main.ldr
+1 4 0 0 0 1 0 0 0 1 0 0 0 1 3001.dat
+1 4 0 -8 0 1 0 0 0 1 0 0 0 1 3020.dat
+1 4 0 -32 0 1 0 0 0 1 0 0 0 1 3001.dat
+1 4 100 0 0 1 0 0 0 1 0 0 0 1 3039.dat
+1 4 140 0 0 1 0 0 0 1 0 0 0 1 3039.dat
+1 4 180 0 0 1 0 0 0 1 0 0 0 1 3068b.dat
+"""
+
+
+def test_ldraw_model_with_unsupported_parts(tmp_path, capsys):
+    src = tmp_path / "model.mpd"
+    src.write_text(MODEL)
+    assert cli.main(["analyze", str(src), "--solver", "exact"]) == 1
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "3 parts cannot be modelled: 3039 x2 (line 5), 3068b x1 (line 7)" in err
+    assert cli.main(["analyze", str(src), "--solver", "exact", "--skip-unsupported", "--json"]) == 0
+    out, err = capsys.readouterr()
+    rec = json.loads(out)
+    assert rec["stable"] and sorted(rec["scores"]) == ["1", "2", "3"]
+    assert err == f"warning: {src}: left out, 3 parts cannot be modelled: 3039 x2 (line 5), 3068b x1 (line 7)\n"
+    ldr = tmp_path / "back.ldr"
+    assert cli.main(["export", str(src), "--ldr", str(ldr)]) == 1
+    assert not ldr.exists()
+    capsys.readouterr()
+    assert cli.main(["export", str(src), "--ldr", str(ldr), "--skip-unsupported"]) == 0
+    assert "left out, 3 parts" in capsys.readouterr().err
+    back = load_layout(str(ldr))
+    assert back.size[:, 2].tolist() == [3, 1, 3] and back.pos[:, 2].tolist() == [0, 3, 4]
 
 
 @pytest.mark.parametrize("name", ["stack8_moved.json", "lego_single_knob.json"])

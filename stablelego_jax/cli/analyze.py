@@ -1,4 +1,4 @@
-"""``stablelego analyze FILE... [--library L] [--solver jax|admm|exact] [--method ours|luo|eb] [--json] [--png P] [--html P]``"""
+"""``stablelego analyze FILE... [--library L] [--solver jax|admm|exact] [--method ours|luo|eb] [--json] [--png P] [--html P] [--skip-unsupported]``"""
 from __future__ import annotations
 
 import json
@@ -21,6 +21,8 @@ def add_parser(sub, methods) -> None:
                    help="ours (paper Eq. 9, default), luo (Luo et al. 2015) or eb (enhanced baseline): "
                         "the baselines answer solvable or not (JSON 'solvable')")
     a.add_argument("--json", action="store_true", help="one JSON object per line")
+    a.add_argument("--skip-unsupported", action="store_true",
+                   help="LDraw: analyse the parts that can be modelled, with a warning naming the others")
     a.add_argument("--png", metavar="P", help="heat map PNG (a folder when several files are given)")
     a.add_argument("--html", metavar="P",
                    help="interactive 3D heat map page (a folder when several files are given)")
@@ -73,6 +75,7 @@ def _baseline_summary(a) -> str:
 
 def cmd_analyze(args) -> int:
     from ..analysis import analyze
+    from ..formats.ldraw import unsupported_message
     from ..scene import Scene
 
     if args.method != "ours" and solver_for(args) != "exact":
@@ -85,7 +88,11 @@ def cmd_analyze(args) -> int:
     for path in args.files:
         png = page = None
         try:
-            a = analyze(path, solver=solver_for(args), library=args.library, method=args.method)
+            left_out: dict = {}
+            a = analyze(path, solver=solver_for(args), library=args.library, method=args.method,
+                        skip_unsupported=args.skip_unsupported, report=left_out)
+            if left_out:
+                print(f"warning: {path}: left out, {unsupported_message(left_out)}", file=sys.stderr, flush=True)
             if args.png and not a.scores:  # a baseline's unsolvable layout has no scores
                 print(f"warning: {path}: no heat map, unsolvable under --method {args.method}", file=sys.stderr)
             elif args.png:
