@@ -198,10 +198,14 @@ def analyze(
     params: Params = Params(),
     opts=None,
     method: str = "ours",
+    skip_unsupported: bool = False,
+    report: dict | None = None,
 ) -> Analysis:
     """Analyse a layout file / dataset folder path, or a Layout (``method``:
-    see :func:`analyze_layout`)."""
-    layout = source if isinstance(source, Layout) else load_layout(str(source), library)
+    see :func:`analyze_layout`; ``skip_unsupported``, ``report``: LDraw
+    parts that cannot be modelled, see
+    :func:`~stablelego_jax.formats.reader.load_layout`)."""
+    layout = source if isinstance(source, Layout) else load_layout(str(source), library, skip_unsupported, report)
     return analyze_layout(layout, solver=solver, params=params, opts=opts, method=method)
 
 

@@ -56,13 +56,15 @@ _DEFAULT_LIBRARY_PATH = os.path.join(os.path.dirname(__file__), "lego_library.js
 
 
 class LayoutError(ValueError):
-    """Bad input. The message names the source (file) and the brick at fault."""
+    """Bad input. The message names the source (file) and the brick (or the
+    body ``what`` names: "block", ...) at fault."""
 
-    def __init__(self, source: str, message: str, key: str | None = None):
+    def __init__(self, source: str, message: str, key: str | None = None, what: str = "brick"):
         self.source = source
         self.key = key
         self.message = message
-        where = f"{source}: brick {key!r}: " if key is not None else f"{source}: "
+        self.what = what
+        where = f"{source}: {what} {key!r}: " if key is not None else f"{source}: "
         super().__init__(where + message)
 
 

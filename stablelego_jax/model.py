@@ -23,15 +23,14 @@ import dataclasses
 
 import numpy as np
 
+from .contacts import PTS_3, PTS_4, contact_levels, four_point_knobs, scene_contacts
 from .layout import Layout, cells_of
+from .scene import BLOCK, Scene, boxes
 
-__all__ = ["Params", "ForceModel", "compile_layout", "normal_groups", "NORMAL", "KNOB", "SIDE"]
+__all__ = ["Params", "ForceModel", "compile_layout", "compile_scene", "column_wrenches", "normal_groups",
+           "NORMAL", "KNOB", "SIDE"]
 
 NORMAL, KNOB, SIDE = 0, 1, 2
-
-# Contact-point offsets (studs) from the knob centre, fixed by the upper brick.
-_PTS_1XN = np.array([[0.0, -0.25], [-0.25, 0.0], [0.0, 0.25], [0.25, 0.0]])
-_PTS_2XN = np.array([[0.125, -0.125], [-0.25, 0.0], [0.125, 0.125]])
 
 
 @dataclasses.dataclass(frozen=True)
@@ -150,8 +149,27 @@ def normal_groups(col_brick: np.ndarray, col_kind: np.ndarray, n: int) -> np.nda
     return group
 
 
-def compile_layout(layout: Layout, params: Params = Params()) -> ForceModel:
-    """Build the force model of ``layout`` (vectorised numpy, no brick loops)."""
+def column_wrenches(pair: np.ndarray, forces: np.ndarray, points: np.ndarray, centre: np.ndarray) -> np.ndarray:
+    """(k, 2, 6) wrench per unit force of columns acting on body ``pair[:, 0]``
+    with ``forces`` (k, 3) at ``points`` (k, 3) (m) and oppositely on
+    ``pair[:, 1]`` (zero where it is ``n`` = ``len(centre)``, the ground);
+    torques about each body's centre ``centre`` (n, 3) (m)."""
+    n = len(centre)
+    c0 = centre[pair[:, 0]]
+    c1 = np.where(pair[:, 1:2] < n, centre[np.minimum(pair[:, 1], n - 1)], 0.0)
+    w0 = np.concatenate([forces, np.cross(points - c0, forces)], axis=1)
+    w1 = np.concatenate([-forces, np.cross(points - c1, -forces)], axis=1)
+    w1 = np.where(pair[:, 1:2] < n, w1, 0.0)
+    return np.stack([w0, w1], axis=1)
+
+
+def compile_layout(layout: Layout | Scene, params: Params = Params()) -> ForceModel:
+    """Build the force model of ``layout`` (vectorised numpy, no brick loops).
+
+    A :class:`~stablelego_jax.scene.Scene` (bodies beyond the stud grid) is
+    compiled by :func:`compile_scene`."""
+    if isinstance(layout, Scene):
+        return compile_scene(layout, params)
     L, Hl = params.stud, params.layer
     n = layout.n
     pos, size = layout.pos, layout.size
@@ -175,18 +193,13 @@ def compile_layout(layout: Layout, params: Params = Params()) -> ForceModel:
 
     def add(bricks_pair, forces, points, kind):
         # forces: (k, 3) unit force on slot 0 (slot 1 gets the opposite); points (k, 3) m
-        c0 = centre[bricks_pair[:, 0]]
-        c1 = np.where(bricks_pair[:, 1:2] < n, centre[np.minimum(bricks_pair[:, 1], n - 1)], 0.0)
-        w0 = np.concatenate([forces, np.cross(points - c0, forces)], axis=1)
-        w1 = np.concatenate([-forces, np.cross(points - c1, -forces)], axis=1)
-        w1 = np.where(bricks_pair[:, 1:2] < n, w1, 0.0)
         cols_brick.append(bricks_pair)
-        cols_coef.append(np.stack([w0, w1], axis=1))
+        cols_coef.append(column_wrenches(bricks_pair, forces, points, centre))
         cols_kind.append(np.full(len(forces), kind, np.int8))
 
     pair = np.stack([c_up, c_lo], axis=1)
-    thin = size[c_up].min(axis=1) < 2
-    for sel, offs in ((thin, _PTS_1XN), (~thin, _PTS_2XN)):
+    four = four_point_knobs(size[c_up], cells[conn, :2] - pos[c_up, :2])
+    for sel, offs in ((four, PTS_4), (~four, PTS_3)):
         k, p = int(sel.sum()), len(offs)
         if k == 0:
             continue
@@ -245,4 +258,42 @@ def compile_layout(layout: Layout, params: Params = Params()) -> ForceModel:
         brick_mask=np.ones(n, bool),
         params=params,
         layer=np.asarray(pos[:, 2], np.int32),
+    )
+
+
+def compile_scene(scene: Scene, params: Params = Params()) -> ForceModel:
+    """Build the force model of a :class:`~stablelego_jax.scene.Scene` from the
+    contacts of :func:`~stablelego_jax.contacts.scene_contacts` (studs of
+    ``params.stud``, plate heights of ``params.layer / 3``).
+
+    Columns, in this order: one ``NORMAL`` per Lego contact point, one
+    ``KNOB`` along x per knob connection, then one along y, and one ``SIDE``
+    per plain or side contact force (the model's last columns, in the order
+    of ``Contacts.push_*``). Gravity acts at each body's centre. ``layer``
+    holds the bodies' levels in the contact graph
+    (:func:`~stablelego_jax.contacts.contact_levels`), so every column joins
+    one level or two adjacent ones.
+    """
+    n = scene.n
+    centre, _, _ = boxes(scene, params.stud, params.layer / 3)
+    c = scene_contacts(scene, params.stud, params.layer / 3)
+    a, b, k = len(c.lego_pair), len(c.knob_pair), len(c.push_pair)
+    ez = np.tile([0.0, 0.0, 1.0], (a, 1))
+    ex, ey = np.tile([1.0, 0.0, 0.0], (b, 1)), np.tile([0.0, 1.0, 0.0], (b, 1))
+    pair = np.concatenate([c.lego_pair, c.knob_pair, c.knob_pair, c.push_pair]).astype(np.int64)
+    forces = np.concatenate([ez, ex, ey, c.push_dir])
+    points = np.concatenate([c.lego_point, c.knob_point, c.knob_point, c.push_point])
+    kind = np.concatenate([np.full(a, NORMAL), np.full(2 * b, KNOB), np.full(k, SIDE)]).astype(np.int8)
+    coef = column_wrenches(pair, forces, points, centre) if len(pair) else np.zeros((0, 2, 6))
+    m = len(kind)
+    col_brick = pair.astype(np.int32)
+    gravity = np.zeros((n, 6))
+    gravity[:, 2] = -scene.mass * params.g
+    ground = np.zeros(n, bool)
+    ground[pair[pair[:, 1] == n, 0]] = True
+    bottom = centre[:, 2] - np.where(scene.kind == BLOCK, scene.size[:, 2], scene.size[:, 2] * params.layer / 3) / 2
+    return ForceModel(
+        n=n, m=m, col_brick=col_brick, col_coef=coef, col_kind=kind, col_mask=np.ones(m, bool),
+        group=normal_groups(col_brick, kind, n), gravity=gravity, brick_mask=np.ones(n, bool), params=params,
+        layer=contact_levels(pair, ground, bottom, n),
     )

@@ -37,6 +37,7 @@ __all__ = [
     "score_cmap",
     "DEFAULT_VIEW",
     "auto_view",
+    "view_basis",
 ]
 
 #: Layer height over stud pitch (9.6 mm / 7.8 mm): the z scale of a picture.
@@ -85,8 +86,9 @@ def _check_view(view, layout: Layout | None = None) -> tuple[float, float]:
     return elev, azim
 
 
-def _basis(view):
-    """Screen right, screen up and towards-viewer unit vectors (world coords)."""
+def view_basis(view):
+    """Screen right, screen up and towards-viewer unit vectors (world coords)
+    of a view (elevation, azimuth) in degrees."""
     e, a = (math.radians(v) for v in view)
     right = np.array([-math.sin(a), math.cos(a), 0.0])
     up = np.array([-math.sin(e) * math.cos(a), -math.sin(e) * math.sin(a), math.cos(e)])
@@ -116,7 +118,7 @@ class _Scene:
         self.layout = layout
         self.scores = scores
         self.view = view
-        right, up, toward = _basis(view)
+        right, up, toward = view_basis(view)
         self.right, self.up = right, up
         occ = layout.occupancy()
         X, Y, Z = occ.shape

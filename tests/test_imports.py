@@ -11,9 +11,9 @@ PKG = "stablelego_jax"
 
 #: The pipeline, bottom up: a module may import its own layer and the ones below.
 LAYERS = [
-    ("foundations", ("layout", "files", "runtime", "blas", "progress")),
-    ("formats", ("formats", "render", "render_html")),
-    ("model", ("model", "soft", "score")),
+    ("foundations", ("layout", "files", "runtime", "blas", "progress", "geometry", "scene")),
+    ("formats", ("formats", "render", "render_scene", "render_html")),
+    ("model", ("model", "soft", "score", "contacts", "support")),
     ("solvers", ("solvers",)),
     ("loss", ("loss",)),
     ("analysis", ("analysis", "batch", "design", "sequence")),

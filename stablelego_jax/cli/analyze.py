@@ -1,4 +1,4 @@
-"""``stablelego analyze FILE... [--library L] [--solver jax|admm|exact] [--method ours|luo|eb] [--json] [--png P] [--html P]``"""
+"""``stablelego analyze FILE... [--library L] [--solver jax|admm|exact] [--method ours|luo|eb] [--json] [--png P] [--html P] [--skip-unsupported]``"""
 from __future__ import annotations
 
 import json
@@ -10,7 +10,8 @@ __all__ = ["add_parser", "cmd_analyze"]
 
 
 def add_parser(sub, methods) -> None:
-    a = sub.add_parser("analyze", help="analyse layout files (StableLego JSON, text, dataset folders)")
+    a = sub.add_parser("analyze", help="analyse layout files (StableLego JSON, text, LDraw, dataset folders, "
+                                       "scenes of blocks and rotated bricks)")
     a.add_argument("files", nargs="+", metavar="FILE")
     a.add_argument("--library", help="brick library JSON (default: the StableLego library)")
     a.add_argument("--solver", choices=["jax", "admm", "exact"], default=None,
@@ -20,13 +21,28 @@ def add_parser(sub, methods) -> None:
                    help="ours (paper Eq. 9, default), luo (Luo et al. 2015) or eb (enhanced baseline): "
                         "the baselines answer solvable or not (JSON 'solvable')")
     a.add_argument("--json", action="store_true", help="one JSON object per line")
+    a.add_argument("--skip-unsupported", action="store_true",
+                   help="LDraw: analyse the parts that can be modelled, with a warning naming the others")
     a.add_argument("--png", metavar="P", help="heat map PNG (a folder when several files are given)")
     a.add_argument("--html", metavar="P",
                    help="interactive 3D heat map page (a folder when several files are given)")
     a.set_defaults(func=cmd_analyze)
 
 
-def _summary(a) -> str:
+def _support(a) -> dict:
+    """{block key: support score} of a scene's plain blocks (empty for
+    layouts of bricks; see :mod:`stablelego_jax.support`)."""
+    from ..scene import BLOCK, Scene
+
+    if not isinstance(a.layout, Scene) or not (a.layout.kind == BLOCK).any() or a.method != "ours":
+        return {}
+    from ..support import support_scores
+
+    s = support_scores(a.layout, a.model, a.forces)
+    return {k: float(v) for k, v, b in zip(a.layout.keys, s, a.layout.kind == BLOCK) if b}
+
+
+def _summary(a, support: dict | None = None) -> str:
     if getattr(a, "method", "ours") != "ours":
         return _baseline_summary(a)
     lines = [
@@ -38,6 +54,10 @@ def _summary(a) -> str:
     if failing:
         shown = ", ".join(repr(k) for k in failing[:10]) + (" ..." if len(failing) > 10 else "")
         lines.append(f"  failing bricks ({len(failing)}): {shown}")
+    if support:
+        k = max(support, key=support.get)
+        lines.append(f"  support margin: highest {support[k]:.4f} at block {k!r} "
+                     "(0: load at the middle of its support, 1: at the edge)")
     return "\n".join(lines)
 
 
@@ -58,7 +78,8 @@ CHUNK = 64
 
 
 def _analyses(args):
-    """(path, Analysis or exception) for every file, in input order. One
+    """(path, Analysis or exception, {left-out LDraw part: count}) for every
+    file, in input order. One
     file: the single-layout solver; several: read ``CHUNK`` at a time and
     solved in one batched call per chunk (:func:`~stablelego_jax.batch.analyze_many`:
     one compiled solver per size bucket instead of one per file; the exact
@@ -67,11 +88,12 @@ def _analyses(args):
 
     solver = solver_for(args)
     if len(args.files) == 1:
-        path = args.files[0]
+        path, left_out = args.files[0], {}
         try:
-            yield path, analyze(path, solver=solver, library=args.library, method=args.method)
+            yield path, analyze(path, solver=solver, library=args.library, method=args.method,
+                                skip_unsupported=args.skip_unsupported, report=left_out), left_out
         except Exception as exc:
-            yield path, exc
+            yield path, exc, left_out
         return
     from ..batch import analyze_many, cpu_cores
     from ..blas import one_blas_thread
@@ -80,9 +102,11 @@ def _analyses(args):
     for c0 in range(0, len(args.files), CHUNK):
         part = args.files[c0: c0 + CHUNK]
         loaded: list = []
+        reports: list = []
         for path in part:
+            reports.append({})
             try:
-                loaded.append(load_layout(path, args.library))
+                loaded.append(load_layout(path, args.library, args.skip_unsupported, reports[-1]))
             except Exception as exc:
                 loaded.append(exc)
         good = [i for i, x in enumerate(loaded) if not isinstance(x, Exception)]
@@ -98,10 +122,13 @@ def _analyses(args):
                     res.append(exc)
         for i, a in zip(good, res):
             loaded[i] = a
-        yield from zip(part, loaded)
+        yield from zip(part, loaded, reports)
 
 
 def cmd_analyze(args) -> int:
+    from ..formats.ldraw import unsupported_message
+    from ..scene import Scene
+
     if args.method != "ours" and solver_for(args) != "exact":
         print(f"error: --method {args.method} runs on the exact solver only (--solver exact)", file=sys.stderr)
         return 2
@@ -109,25 +136,36 @@ def cmd_analyze(args) -> int:
     failed = 0
     used: set = set()
     used_html: set = set()
-    for path, a in _analyses(args):
+    for path, a, left_out in _analyses(args):
         png = page = None
         try:
             if isinstance(a, Exception):
                 raise a
+            if left_out:
+                print(f"warning: {path}: left out, {unsupported_message(left_out)}", file=sys.stderr, flush=True)
             if args.png and not a.scores:  # a baseline's unsolvable layout has no scores
                 print(f"warning: {path}: no heat map, unsolvable under --method {args.method}", file=sys.stderr)
             elif args.png:
-                from ..render import render_heatmap
-
                 scores = [a.scores[k] for k in a.layout.keys]
                 png = png_target(args.png, path, many, used)
-                render_heatmap(a.layout, scores, png)
-            if args.html and a.scores:
+                if isinstance(a.layout, Scene):
+                    from ..render_scene import render_scene
+
+                    render_scene(a.layout, scores, png)
+                else:
+                    from ..render import render_heatmap
+
+                    render_heatmap(a.layout, scores, png)
+            if args.html and a.scores and not isinstance(a.layout, Scene):
                 from ..render_html import html_heatmap
 
                 page = png_target(args.html, path, many, used_html, ext=".html")
                 html_heatmap(a.layout, [a.scores[k] for k in a.layout.keys], page, title=path,
                              note=_summary(a).splitlines()[0])
+            elif args.html and a.scores:
+                print(f"warning: {path}: no 3D page for scenes (blocks, plates, turned bricks) yet; "
+                      "--png draws them", file=sys.stderr)
+            support = _support(a)
         except Exception as exc:  # one bad file must not stop the others
             failed += 1
             report_error(path, exc, args.json)
@@ -139,9 +177,11 @@ def cmd_analyze(args) -> int:
                 rec["png"] = png
             if page is not None:
                 rec["html"] = page
+            if support:
+                rec["support"] = {k: round(v, 6) for k, v in support.items()}
             print(json.dumps(rec), flush=True)
         else:
-            print(_summary(a) + (f"\n  heat map: {png}" if png is not None else "")
+            print(_summary(a, support) + (f"\n  heat map: {png}" if png is not None else "")
                   + (f"\n  3D page: {page}" if page is not None else ""), flush=True)
         if not a.converged:
             print(f"warning: {path}: solver did not converge (gap {a.gap:.2e}); scores are approximate",

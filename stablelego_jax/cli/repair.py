@@ -165,6 +165,11 @@ def cmd_repair(args) -> int:
     path = args.layout
     try:
         layout = load_layout(path, args.library)
+        from ..scene import Scene
+
+        if isinstance(layout, Scene):
+            raise LayoutError(path, "repair adds grid bricks to layouts of grid bricks; scenes of blocks or "
+                                    "rotated bricks cannot be repaired yet")
         if layout.fmt == "dataset" and os.path.exists(args.out):
             raise LayoutError(args.out, "already exists (dataset objects are written as new folders)")
         opts = RepairOptions(region=args.region, max_add=args.max_add, allow_remove=args.allow_remove,

@@ -68,6 +68,12 @@ def _load(args):
         layout = task.layout
     else:
         layout = load_layout(path, args.library)
+        from ..layout import LayoutError
+        from ..scene import Scene
+
+        if isinstance(layout, Scene):
+            raise LayoutError(path, "sequence builds layouts of grid bricks; scenes of blocks, plates or turned "
+                                    "bricks cannot be sequenced yet")
         base = layer_order(layout)
     if args.order == "layers":
         base = dataclasses.replace(base, keys=layer_order(layout, base.fixed).keys, name="layers")

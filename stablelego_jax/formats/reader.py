@@ -12,7 +12,9 @@ import os
 
 from ..files import atomic_write_text, read_text
 from ..layout import Layout, LayoutError, Library
-from .ldraw import read_ldr
+from ..scene import Scene
+from .blocks import is_scene_json, parse_scene_json, scene_to_json_dict
+from .ldraw import LDRAW_EXTS, read_ldr
 from .stablelego import (
     TEXT_LINE,
     as_library,
@@ -26,14 +28,22 @@ from .stablelego import (
 __all__ = ["load_layout", "write_layout"]
 
 
-def load_layout(path: str, library: Library | str | None = None) -> Layout:
+def load_layout(path: str, library: Library | str | None = None, skip_unsupported: bool = False,
+                report: dict | None = None) -> Layout | Scene:
     """Read a layout file or dataset object folder, detecting the format.
 
     Args:
-      path: ``.json`` StableLego layout, ``.txt`` text layout, ``.ldr``
-        LDraw file of basic bricks (:mod:`stablelego_jax.formats.ldraw`), or a
-        folder holding ``task_graph.json``.
+      path: ``.json`` StableLego layout or scene, ``.txt`` text layout,
+        ``.ldr`` / ``.mpd`` LDraw model (:mod:`stablelego_jax.formats.ldraw`),
+        or a folder holding ``task_graph.json``.
       library: a Library, a library JSON path, or None for the default.
+      skip_unsupported, report: LDraw files only: leave out the parts that
+        cannot be modelled instead of refusing the file, and tell which in
+        ``report`` (see :func:`~stablelego_jax.formats.ldraw.parse_ldr`).
+
+    A ``"blocks"`` document, or a StableLego layout with rotated bricks
+    (``center`` / ``yaw``), gives a :class:`~stablelego_jax.scene.Scene`
+    (:mod:`stablelego_jax.formats.blocks`); every other input a Layout.
     """
     path = os.fspath(path)
     lib = as_library(library)
@@ -46,27 +56,41 @@ def load_layout(path: str, library: Library | str | None = None) -> Layout:
     if not os.path.exists(path):
         raise LayoutError(path, "no such file")
     ext = os.path.splitext(path)[1].lower()
-    if ext == ".ldr":
-        return read_ldr(path)
+    if ext in LDRAW_EXTS:
+        return read_ldr(path, skip_unsupported=skip_unsupported, report=report)
     if ext == ".json":
-        return parse_json_layout(read_json(path), lib, source=path)
+        return _parse_json(read_json(path), lib, path)
     text = read_text(path)
     if ext == ".txt" or TEXT_LINE.match(text.strip().splitlines()[0] if text.strip() else ""):
         return parse_text_layout(text, source=path)
     if text.lstrip().startswith("{"):
-        return parse_json_layout(read_json(path), lib, source=path)
-    raise LayoutError(path, "unknown layout format (expected .json, .txt, .ldr or a dataset folder)")
+        return _parse_json(read_json(path), lib, path)
+    raise LayoutError(path, "unknown layout format (expected .json, .txt, .ldr, .mpd or a dataset folder)")
 
 
-def write_layout(layout: Layout, path: str, fmt: str | None = None, library: Library | str | None = None) -> None:
+def _parse_json(raw, lib: Library, path: str) -> Layout | Scene:
+    if is_scene_json(raw):
+        return parse_scene_json(raw, lib, source=path)
+    return parse_json_layout(raw, lib, source=path)
+
+
+def write_layout(layout: Layout | Scene, path: str, fmt: str | None = None,
+                 library: Library | str | None = None) -> None:
     """Write ``layout`` atomically as JSON (default) or text (``.txt`` or ``fmt="text"``).
 
-    Raises LayoutError naming ``path`` and the brick when the format cannot
-    represent a brick; nothing is written then.
+    A Scene is written as JSON in the form it was read
+    (:func:`~stablelego_jax.formats.blocks.scene_to_json_dict`); it has no
+    text form. Raises LayoutError naming ``path`` and the brick when the
+    format cannot represent a brick; nothing is written then.
     """
     fmt = fmt or ("text" if path.endswith(".txt") else "json")
     if fmt not in ("json", "text"):
         raise ValueError(f"unknown layout format {fmt!r} (expected 'json' or 'text')")
+    if isinstance(layout, Scene):
+        if fmt == "text":
+            raise LayoutError(path, "blocks and rotated bricks have no text form; write JSON")
+        atomic_write_text(path, json.dumps(scene_to_json_dict(layout, as_library(library)), indent=1) + "\n")
+        return
     try:
         if fmt == "text":
             text = layout_to_text(layout)
@@ -76,5 +100,5 @@ def write_layout(layout: Layout, path: str, fmt: str | None = None, library: Lib
     except LayoutError as exc:
         if exc.source != layout.source:  # e.g. an unreadable library file
             raise
-        raise LayoutError(path, exc.message, exc.key) from None
+        raise LayoutError(path, exc.message, exc.key, what=exc.what) from None
     atomic_write_text(path, text)
