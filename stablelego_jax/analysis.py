@@ -74,6 +74,8 @@ def error_message(path: str, exc: Exception) -> str:
     """One-line message for an input that failed, naming ``path`` once
     (layout and file errors as they are, anything else with its type)."""
     text = str(exc) if isinstance(exc, (LayoutError, OSError)) else f"{type(exc).__name__}: {exc}"
+    if isinstance(exc, LayoutError) or (isinstance(exc, OSError) and exc.filename):
+        return text  # names the file at fault (a library, an output), which may not be ``path``
     return text if path in text else f"{path}: {text}"
 
 

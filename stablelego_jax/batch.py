@@ -30,9 +30,10 @@ import numpy as np
 
 from .analysis import analyze_baseline, error_message, make_analysis
 from .blas import one_blas_thread
-from .files import atomic_write, atomic_write_text
+from .files import atomic_write, atomic_write_text, cut, read_text
 from .formats.dataset import score_grid
 from .formats import rows
+from .layout import LayoutError
 from .model import Params, compile_layout
 from .progress import Progress
 from .solvers import admm, ipm
@@ -53,7 +54,7 @@ from .solvers.problem import (
 )
 
 __all__ = ["find_layouts", "read_results", "ScoreStats", "iter_analyses", "analyze_many", "score_files",
-           "batch_solver_fn", "batch_sizes", "plan_bytes"]
+           "batch_solver_fn", "batch_sizes", "plan_bytes", "RESULT_PREFIX"]
 
 LAYOUT_EXTS = (".json", ".txt", ".ldr")
 # files that sit beside StableLego layouts but are not layouts
@@ -78,7 +79,9 @@ def find_layouts(inputs: Sequence[str], id_column: str | None = None) -> list:
         if not os.path.isdir(inp):
             out.extend(rows.expand(inp, id_column) if rows.is_row_file(inp) else [inp])
             continue
-        for d, subdirs, files in os.walk(inp):
+        n0 = len(out)
+        # an unreadable folder is kept as a path, so that it gets an error line
+        for d, subdirs, files in os.walk(inp, onerror=lambda exc: out.append(exc.filename)):
             subdirs[:] = sorted(s for s in subdirs if not s.startswith("."))
             if "task_graph.json" in files:
                 out.append(d)
@@ -89,30 +92,50 @@ def find_layouts(inputs: Sequence[str], id_column: str | None = None) -> list:
                     out.append(os.path.join(d, f))
                 elif f.endswith(".parquet") and not f.startswith("."):
                     out.extend(rows.expand(os.path.join(d, f), id_column))
+        if len(out) == n0:
+            raise LayoutError(inp, "no layouts in this folder (no .json, .txt, .ldr or .parquet files, "
+                                   "no dataset objects)")
     seen: set = set()
     return [p for p in out if not (str(p) in seen or seen.add(str(p)))]
 
 
+#: How every line of a results file of ours begins (``json.dumps`` of a dict whose first key is "file").
+RESULT_PREFIX = '{"file": '
+
+
 def read_results(out: str, key: str = "file") -> dict:
-    """{record[key]: record} of a JSON-lines results file; a torn or corrupt
-    line (or one without ``key``) is dropped and the file rewritten without
-    it (atomically)."""
+    """{record[key]: record} of a JSON-lines results file of ours.
+
+    A torn last line (an interrupted write) is dropped and the file
+    rewritten without it (atomically). Any other file is refused with a
+    LayoutError naming it, never truncated: a file that is not UTF-8, not
+    regular, or has a complete line that is not a result object."""
     done: dict = {}
-    if not os.path.exists(out):
+    if not os.path.lexists(out):
         return done
-    good, torn = [], 0
-    with open(out, encoding="utf-8") as fh:
-        for line in fh:
-            try:
-                rec = json.loads(line)
-                if not isinstance(rec, dict) or key not in rec or not line.endswith("\n"):
-                    raise ValueError
-            except ValueError:
-                torn += 1
-                continue
+    what = "results file"
+    text = read_text(out, what)
+    refuse = "exists and is not a results file of stablelego score ({}); refusing to write to it"
+    lines = text.splitlines(keepends=True)
+    good = []
+    for no, line in enumerate(lines, start=1):
+        if not line.strip():
+            good.append(line)
+            continue
+        try:
+            rec = json.loads(line)
+            ok = isinstance(rec, dict) and key in rec and ("error" in rec or "scores" in rec or "stable" in rec)
+        except ValueError:
+            ok = False
+        if ok and line.endswith("\n"):
             done[rec[key]] = rec
             good.append(line)
-    if torn:
+            continue
+        torn = no == len(lines) and not line.endswith("\n") and (
+            line.startswith(RESULT_PREFIX) or RESULT_PREFIX.startswith(line))
+        if not torn:
+            raise LayoutError(out, refuse.format(f"line {no}: {cut(line.strip())!r}"))
+    if len(good) != len(lines):
         atomic_write_text(out, "".join(good))
     return done
 
@@ -383,6 +406,8 @@ def _score_files(
     if solver != "exact":
         _device_count(devices)  # refuse a bad count before reading anything
     paths = find_layouts(inputs, id_column)
+    if not paths:
+        raise LayoutError(", ".join(map(str, inputs)), "no layouts to score")
     done = read_results(out)
     todo = [p for p in paths if str(p) not in done]
     st = ScoreStats(total=len(paths), skipped=len(paths) - len(todo))
