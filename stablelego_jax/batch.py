@@ -28,7 +28,7 @@ from typing import Iterable, Iterator, Sequence
 import jax
 import numpy as np
 
-from .analysis import analyze_baseline, error_message, make_analysis
+from .analysis import analyze_baseline, error_message, make_analysis, resolve_unconverged
 from .blas import one_blas_thread
 from .files import atomic_write, atomic_write_text, cut, read_text
 from .formats.dataset import score_grid
@@ -195,6 +195,7 @@ class ScoreStats:
     scored: int = 0
     errors: int = 0
     not_converged: int = 0
+    retried: int = 0
     compile_s: float = 0.0
     solve_s: float = 0.0
     load_s: float = 0.0
@@ -234,6 +235,7 @@ def iter_analyses(
     first_cap: int = 1000,
     method: str = "ours",
     stats: ScoreStats | None = None,
+    fallback: bool = True,
 ) -> Iterator[list[tuple[int, object]]]:
     """Analyse many in-memory layouts, batched: yields, per solver call, the
     list of ``(i, Analysis)`` for the ``layouts[i]`` it solved (batches do
@@ -250,6 +252,10 @@ def iter_analyses(
     the full budget. ``stats`` (a :class:`ScoreStats`) accumulates solve and
     compile time, compiles and non-converged counts. An Analysis of a JAX
     solver has ``time_s`` = its share of its batch(es) and ``iters``.
+    ``fallback``: a layout the JAX solver leaves unconverged is solved
+    again, alone (:func:`~stablelego_jax.analysis.resolve_unconverged`: a
+    longer run, then the exact solver; its ``solver`` says which answered,
+    ``retried`` what did not converge); False yields it as it is.
     """
     if solver not in ("jax", "admm", "exact"):
         raise ValueError(f"unknown solver {solver!r} (expected 'jax', 'admm' or 'exact')")
@@ -340,6 +346,12 @@ def iter_analyses(
                                       time.perf_counter(), iters=spent[i][1], gap=float(sol.gap[j]),
                                       objective=float(sol.objective[j]))
                     a.time_s = spent[i][0]  # amortised share of its batch(es)
+                    if fallback and not a.converged:
+                        t1 = time.perf_counter()
+                        with one_blas_thread():
+                            a = resolve_unconverged(a, o, params)
+                        st.solve_s += time.perf_counter() - t1
+                        st.retried += 1
                     st.not_converged += not a.converged
                     done.append((i, a))
                 if done:
