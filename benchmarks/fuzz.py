@@ -228,7 +228,10 @@ def main() -> int:
                         c[cmd, "ok"] += 1
                     if cmd == "repair":
                         written = [f for f in os.listdir(outd) if f.startswith(f"rep{i}")]
-                        if rc != 0 and written:
+                        # OUT only on success; the before/after PNG also after "still UNSTABLE" (exit 1
+                        # with a report on stdout), never after an error line
+                        out_file = [f for f in written if not f.endswith(".png")]
+                        if rc != 0 and (out_file or (written and not out.strip())):
                             c[cmd, "half-written"] += 1
                             bad.append((cmd, f"{path}: {written} left after exit {rc}"))
                         for f in written:

@@ -145,7 +145,7 @@ def load_mesh(path: str):
     except ImportError:  # an optional package trimesh wanted for this file
         raise MeshError(path, f"cannot read mesh: not a valid {ext[1:].upper()} file") from None
     except Exception as exc:  # trimesh raises many kinds on junk input
-        raise MeshError(path, f"cannot read mesh ({type(exc).__name__}: {_cut(str(exc))})") from None
+        raise MeshError(path, f"cannot read mesh: not a valid {ext[1:].upper()} file ({_cut(str(exc)) or 'unreadable'})") from None
     if mesh is None:
         raise MeshError(path, "mesh has no triangles")
     v = np.asarray(mesh.vertices, np.float64)
