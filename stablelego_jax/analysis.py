@@ -18,7 +18,10 @@ from .solvers.exact import solve_exact
 # of a second, which an exact-solver run never needs.
 
 __all__ = ["Analysis", "analyze", "analyze_layout", "analyze_baseline", "make_analysis", "error_message",
-           "solve_jax", "solver_fn"]
+           "solve_jax", "solver_fn", "resolve_unconverged", "LONGER_RUN"]
+
+#: A JAX run stopped at its iteration cap is tried again with this many times the cap.
+LONGER_RUN = 4
 
 
 @dataclasses.dataclass
@@ -53,6 +56,7 @@ class Analysis:
     objective: float = float("nan")
     method: str = "ours"
     solvable: bool | None = True
+    retried: tuple = ()
 
     def to_json(self) -> dict:
         out = {
@@ -67,6 +71,8 @@ class Analysis:
         }
         if self.method != "ours":  # baselines (see baselines.py): "unsolvable" is an answer
             out.update(method=self.method, solvable=self.solvable)
+        if self.retried:  # the runs that did not converge before ``solver`` produced this answer
+            out["retried"] = list(self.retried)
         return out
 
 
@@ -74,6 +80,8 @@ def error_message(path: str, exc: Exception) -> str:
     """One-line message for an input that failed, naming ``path`` once
     (layout and file errors as they are, anything else with its type)."""
     text = str(exc) if isinstance(exc, (LayoutError, OSError)) else f"{type(exc).__name__}: {exc}"
+    if isinstance(exc, LayoutError) or (isinstance(exc, OSError) and exc.filename):
+        return text  # names the file at fault (a library, an output), which may not be ``path``
     return text if path in text else f"{path}: {text}"
 
 
@@ -121,6 +129,36 @@ def solve_jax(model: ForceModel, opts=None):
     return Solution(*jax.device_get(exe(*arrays))), padded
 
 
+def resolve_unconverged(a: "Analysis", opts=None, params: Params | None = None) -> "Analysis":
+    """The answer for a layout whose JAX run ``a`` did not converge, so that
+    an unconverged result is never reported as a label: a longer run
+    (:data:`LONGER_RUN` times the iteration cap; only when ``a`` stopped at
+    its cap, since a run that stalled before it would stall again), then
+    the exact solver (HiGHS). The Analysis returned has ``solver`` = the
+    solver that produced it and ``retried`` = the runs that did not
+    converge; ``converged`` is False only if HiGHS failed too."""
+    from .solvers import admm, ipm
+
+    t0 = time.perf_counter() - a.time_s
+    params = params or a.model.params
+    if opts is None:
+        opts = admm.SolverOptions() if a.solver == "admm" else ipm.IPMOptions()
+    model = compile_layout(a.layout, params)
+    tried = [f"{a.solver}: {a.iters} iterations, gap {a.gap:.1e}"]
+    if a.iters >= opts.max_iter:
+        longer = dataclasses.replace(opts, max_iter=opts.max_iter * LONGER_RUN)
+        with one_blas_thread():
+            sol, padded = solve_jax(model, longer)
+        if bool(sol.converged):
+            return make_analysis(a.layout, padded, np.asarray(sol.f), a.solver, True, t0, iters=int(sol.iters),
+                                 gap=float(sol.gap), objective=float(sol.objective), retried=tuple(tried))
+        tried.append(f"{a.solver} x{LONGER_RUN}: {int(sol.iters)} iterations, gap {float(sol.gap):.1e}")
+    r = solve_exact(model, method="highs-ipm", scale=True)
+    if not r.success:
+        r = solve_exact(model, method="highs", scale=True)
+    return make_analysis(a.layout, model, r.f, "exact", r.success, t0, objective=r.objective, retried=tuple(tried))
+
+
 def make_analysis(layout, model, f, solver, converged, t0, **diag) -> Analysis:
     """The :class:`Analysis` of forces ``f`` ((m_pad,) N) solved on ``model``
     for ``layout`` by ``solver``; ``t0``: start time (perf_counter)."""
@@ -152,6 +190,7 @@ def analyze_layout(
     exact_method: str = "highs",
     exact_scale: bool = True,
     method: str = "ours",
+    fallback: bool = True,
 ) -> Analysis:
     """Analyse an in-memory layout with ``solver`` in {"jax", "admm", "exact"}.
 
@@ -164,7 +203,9 @@ def analyze_layout(
     exact solver (see :func:`~stablelego_jax.solvers.exact.solve_exact`;
     "highs-ipm" with scaling is the fast, robust choice for layouts of
     hundreds of bricks). ``method``: "ours" (paper Eq. 9), or the baselines
-    "luo" / "eb" (exact solver only; see :mod:`~stablelego_jax.solvers.baselines`)."""
+    "luo" / "eb" (exact solver only; see :mod:`~stablelego_jax.solvers.baselines`).
+    ``fallback``: a JAX run that did not converge is solved again
+    (:func:`resolve_unconverged`); False returns it as it is."""
     if method not in METHODS:
         raise ValueError(f"unknown method {method!r} (expected one of {', '.join(METHODS)})")
     if method != "ours" and solver != "exact":
@@ -185,10 +226,15 @@ def analyze_layout(
     with one_blas_thread():  # JAX's CPU LAPACK goes through OpenBLAS (see blas.py)
         sol, padded = solve_jax(model, opts)
         f = np.asarray(sol.f)
-    return make_analysis(
+    a = make_analysis(
         layout, padded, f, solver, bool(sol.converged), t0,
         iters=int(sol.iters), gap=float(sol.gap), objective=float(sol.objective),
     )
+    if fallback and not a.converged:
+        from .solvers import ipm
+
+        a = resolve_unconverged(a, opts if opts is not None or solver == "admm" else ipm.IPMOptions(), params)
+    return a
 
 
 def analyze(
@@ -200,13 +246,14 @@ def analyze(
     method: str = "ours",
     skip_unsupported: bool = False,
     report: dict | None = None,
+    fallback: bool = True,
 ) -> Analysis:
-    """Analyse a layout file / dataset folder path, or a Layout (``method``:
-    see :func:`analyze_layout`; ``skip_unsupported``, ``report``: LDraw
-    parts that cannot be modelled, see
+    """Analyse a layout file / dataset folder path, or a Layout (``method``,
+    ``fallback``: see :func:`analyze_layout`; ``skip_unsupported``,
+    ``report``: LDraw parts that cannot be modelled, see
     :func:`~stablelego_jax.formats.reader.load_layout`)."""
     layout = source if isinstance(source, Layout) else load_layout(str(source), library, skip_unsupported, report)
-    return analyze_layout(layout, solver=solver, params=params, opts=opts, method=method)
+    return analyze_layout(layout, solver=solver, params=params, opts=opts, method=method, fallback=fallback)
 
 
 def analyze_baseline(layout: Layout, model: ForceModel, method: str, t0: float | None = None, **kw) -> Analysis:

@@ -31,11 +31,12 @@ from typing import Iterable, Iterator, Sequence
 import jax
 import numpy as np
 
-from .analysis import analyze_baseline, error_message, make_analysis
+from .analysis import analyze_baseline, error_message, make_analysis, resolve_unconverged
 from .blas import one_blas_thread
-from .files import atomic_write, atomic_write_text
+from .files import atomic_write, atomic_write_text, cut, read_text
 from .formats.dataset import score_grid
 from .formats import rows
+from .layout import LayoutError
 from .model import Params, compile_layout
 from .progress import Progress
 from .solvers import admm, ipm
@@ -58,7 +59,8 @@ from .solvers.problem import (
 )
 
 __all__ = ["find_layouts", "read_results", "ScoreStats", "iter_analyses", "analyze_many", "score_files",
-           "batch_solver_fn", "batch_sizes", "plan_bytes", "parse_shard", "in_shard", "cpu_cores"]
+           "batch_solver_fn", "batch_sizes", "plan_bytes", "parse_shard", "in_shard", "cpu_cores",
+           "RESULT_PREFIX"]
 
 LAYOUT_EXTS = (".json", ".txt", ".ldr")
 # files that sit beside StableLego layouts but are not layouts
@@ -83,7 +85,9 @@ def find_layouts(inputs: Sequence[str], id_column: str | None = None) -> list:
         if not os.path.isdir(inp):
             out.extend(rows.expand(inp, id_column) if rows.is_row_file(inp) else [inp])
             continue
-        for d, subdirs, files in os.walk(inp):
+        n0 = len(out)
+        # an unreadable folder is kept as a path, so that it gets an error line
+        for d, subdirs, files in os.walk(inp, onerror=lambda exc: out.append(exc.filename)):
             subdirs[:] = sorted(s for s in subdirs if not s.startswith("."))
             if "task_graph.json" in files:
                 out.append(d)
@@ -94,6 +98,9 @@ def find_layouts(inputs: Sequence[str], id_column: str | None = None) -> list:
                     out.append(os.path.join(d, f))
                 elif f.endswith(".parquet") and not f.startswith("."):
                     out.extend(rows.expand(os.path.join(d, f), id_column))
+        if len(out) == n0:
+            raise LayoutError(inp, "no layouts in this folder (no .json, .txt, .ldr or .parquet files, "
+                                   "no dataset objects)")
     seen: set = set()
     return [p for p in out if not (str(p) in seen or seen.add(str(p)))]
 
@@ -131,26 +138,43 @@ def in_shard(source, k: int, n: int) -> bool:
     return int.from_bytes(h[:8], "big") % n == k
 
 
+#: How every line of a results file of ours begins (``json.dumps`` of a dict whose first key is "file").
+RESULT_PREFIX = '{"file": '
+
+
 def read_results(out: str, key: str = "file") -> dict:
-    """{record[key]: record} of a JSON-lines results file; a torn or corrupt
-    line (or one without ``key``) is dropped and the file rewritten without
-    it (atomically)."""
+    """{record[key]: record} of a JSON-lines results file of ours.
+
+    A torn last line (an interrupted write) is dropped and the file
+    rewritten without it (atomically). Any other file is refused with a
+    LayoutError naming it, never truncated: a file that is not UTF-8, not
+    regular, or has a complete line that is not a result object."""
     done: dict = {}
-    if not os.path.exists(out):
+    if not os.path.lexists(out):
         return done
-    good, torn = [], 0
-    with open(out, encoding="utf-8") as fh:
-        for line in fh:
-            try:
-                rec = json.loads(line)
-                if not isinstance(rec, dict) or key not in rec or not line.endswith("\n"):
-                    raise ValueError
-            except ValueError:
-                torn += 1
-                continue
+    what = "results file"
+    text = read_text(out, what)
+    refuse = "exists and is not a results file of stablelego score ({}); refusing to write to it"
+    lines = text.splitlines(keepends=True)
+    good = []
+    for no, line in enumerate(lines, start=1):
+        if not line.strip():
+            good.append(line)
+            continue
+        try:
+            rec = json.loads(line)
+            ok = isinstance(rec, dict) and key in rec and ("error" in rec or "scores" in rec or "stable" in rec)
+        except ValueError:
+            ok = False
+        if ok and line.endswith("\n"):
             done[rec[key]] = rec
             good.append(line)
-    if torn:
+            continue
+        torn = no == len(lines) and not line.endswith("\n") and (
+            line.startswith(RESULT_PREFIX) or RESULT_PREFIX.startswith(line))
+        if not torn:
+            raise LayoutError(out, refuse.format(f"line {no}: {cut(line.strip())!r}"))
+    if len(good) != len(lines):
         atomic_write_text(out, "".join(good))
     return done
 
@@ -210,6 +234,7 @@ class ScoreStats:
     scored: int = 0
     errors: int = 0
     not_converged: int = 0
+    retried: int = 0
     compile_s: float = 0.0
     solve_s: float = 0.0
     load_s: float = 0.0
@@ -251,6 +276,7 @@ def iter_analyses(
     stats: ScoreStats | None = None,
     jobs: int = 1,
     merge: bool = True,
+    fallback: bool = True,
 ) -> Iterator[list[tuple[int, object]]]:
     """Analyse many in-memory layouts, batched: yields, per solver call, the
     list of ``(i, Analysis)`` for the ``layouts[i]`` it solved (batches do
@@ -271,6 +297,10 @@ def iter_analyses(
     the full budget. ``stats`` (a :class:`ScoreStats`) accumulates solve and
     compile time, compiles and non-converged counts. An Analysis of a JAX
     solver has ``time_s`` = its share of its batch(es) and ``iters``.
+    ``fallback``: a layout the JAX solver leaves unconverged is solved
+    again, alone (:func:`~stablelego_jax.analysis.resolve_unconverged`: a
+    longer run, then the exact solver; its ``solver`` says which answered,
+    ``retried`` what did not converge); False yields it as it is.
     """
     if solver not in ("jax", "admm", "exact"):
         raise ValueError(f"unknown solver {solver!r} (expected 'jax', 'admm' or 'exact')")
@@ -369,6 +399,12 @@ def iter_analyses(
                                       time.perf_counter(), iters=spent[i][1], gap=float(sol.gap[j]),
                                       objective=float(sol.objective[j]))
                     a.time_s = spent[i][0]  # amortised share of its batch(es)
+                    if fallback and not a.converged:
+                        t1 = time.perf_counter()
+                        with one_blas_thread():
+                            a = resolve_unconverged(a, o, params)
+                        st.solve_s += time.perf_counter() - t1
+                        st.retried += 1
                     st.not_converged += not a.converged
                     done.append((i, a))
                 if done:
@@ -480,6 +516,8 @@ def _score_files(
     if solver != "exact":
         _device_count(devices)  # refuse a bad count before reading anything
     paths = find_layouts(inputs, id_column)
+    if not paths:
+        raise LayoutError(", ".join(map(str, inputs)), "no layouts to score")
     if shard is not None:
         paths = [p for p in paths if in_shard(p, *shard)]
     done = read_results(out)

@@ -5,12 +5,16 @@ to a temporary sibling first and is renamed into place.
 """
 from __future__ import annotations
 
+import contextlib
+import errno
 import os
+import stat
 import tempfile
 
-from .layout import LayoutError
+from .layout import LayoutError, cut
 
-__all__ = ["atomic_write", "atomic_write_text", "read_text", "current_umask", "cut"]
+__all__ = ["atomic_write", "atomic_write_text", "read_text", "read_bytes", "check_regular", "check_output",
+           "staged_outputs", "current_umask", "cut"]
 
 
 def atomic_write(path: str, write, binary: bool = False) -> None:
@@ -22,15 +26,22 @@ def atomic_write(path: str, write, binary: bool = False) -> None:
     """
     path = os.fspath(path)
     d = os.path.dirname(os.path.abspath(path))
-    fd, tmp = tempfile.mkstemp(dir=d, prefix=".tmp-", suffix=os.path.basename(path))
+    if os.path.isdir(path):
+        raise OSError(errno.EISDIR, "is a folder, not a file", path)
+    try:
+        fd, tmp = tempfile.mkstemp(dir=d, prefix=".tmp-", suffix=os.path.basename(path))
+    except OSError as exc:  # name the user's path, not the temporary file
+        raise OSError(exc.errno, exc.strerror, path) from None
     try:
         with (os.fdopen(fd, "wb") if binary else os.fdopen(fd, "w", encoding="utf-8")) as fh:
             write(fh)
         os.chmod(tmp, 0o666 & ~current_umask())
         os.replace(tmp, path)
-    except BaseException:
+    except BaseException as exc:
         if os.path.exists(tmp):
             os.unlink(tmp)
+        if isinstance(exc, OSError) and exc.filename in (tmp, None) and exc.errno is not None:
+            raise OSError(exc.errno, exc.strerror, path) from None
         raise
 
 
@@ -46,17 +57,96 @@ def current_umask() -> int:
     return mask
 
 
-def read_text(path: str) -> str:
-    """The UTF-8 text of ``path``; LayoutError naming the file otherwise."""
+def check_regular(path: str, what: str = "file") -> None:
+    """LayoutError naming ``path`` unless it is a regular file (a named pipe,
+    a device or a socket would block or never end; a folder is no file)."""
     try:
-        with open(path, encoding="utf-8") as fh:
-            return fh.read()
-    except UnicodeDecodeError:
-        raise LayoutError(path, "file is not UTF-8 text") from None
+        st = os.stat(path)
     except OSError as exc:
-        raise LayoutError(path, f"cannot read: {exc.strerror}") from None
+        raise LayoutError(path, f"cannot read {what}: {exc.strerror}") from None
+    if stat.S_ISDIR(st.st_mode):
+        raise LayoutError(path, f"{what} is a folder, not a file")
+    if not stat.S_ISREG(st.st_mode):
+        kind = "a named pipe" if stat.S_ISFIFO(st.st_mode) else "a device or socket"
+        raise LayoutError(path, f"{what} is {kind}, not a regular file")
 
 
-def cut(s: str, limit: int = 40) -> str:
-    """``s`` cut to ``limit`` characters (keeps error messages readable)."""
-    return s if len(s) <= limit else s[: limit - 3] + "..."
+def read_bytes(path: str, what: str = "file") -> bytes:
+    """The bytes of the regular file ``path``; LayoutError naming it otherwise."""
+    check_regular(path, what)
+    try:
+        with open(path, "rb") as fh:
+            return fh.read()
+    except OSError as exc:
+        raise LayoutError(path, f"cannot read {what}: {exc.strerror}") from None
+
+
+def read_text(path: str, what: str = "file") -> str:
+    """The UTF-8 text of the regular file ``path``; LayoutError naming the file otherwise."""
+    data = read_bytes(path, what)
+    try:
+        return data.decode("utf-8")
+    except UnicodeDecodeError:
+        raise LayoutError(path, f"{what} is not UTF-8 text" if what != "file" else "file is not UTF-8 text") from None
+
+
+def check_output(path: str) -> None:
+    """LayoutError naming ``path`` when it cannot be written: its folder is
+    missing or not writable, or it is a folder or a non-regular file. Run on
+    every output of a command before writing any (all or nothing)."""
+    path = os.fspath(path)
+    d = os.path.dirname(os.path.abspath(path))
+    if not os.path.isdir(d):
+        raise LayoutError(path, f"cannot write: folder {os.path.dirname(path) or d!r} does not exist")
+    if not os.access(d, os.W_OK | os.X_OK):
+        raise LayoutError(path, f"cannot write: folder {os.path.dirname(path) or d!r} is not writable")
+    if os.path.isdir(path):
+        raise LayoutError(path, "cannot write: is a folder")
+    if os.path.lexists(path) and not os.path.isfile(path):
+        raise LayoutError(path, "cannot write: not a regular file")
+
+
+@contextlib.contextmanager
+def staged_outputs(paths):
+    """All-or-nothing writing of several files: checks every path first
+    (:func:`check_output`), then yields ``stage(path)``, which gives a
+    temporary sibling of ``path`` (same folder, same extension) for a
+    writer to write. When the block ends without an exception, every staged
+    file is renamed into place; otherwise they are all removed, and an
+    error that names a temporary file is re-raised naming the user's path.
+    Paths never staged are not written."""
+    paths = [os.fspath(p) for p in paths if p]
+    for p in paths:
+        check_output(p)
+    tmps: dict = {}
+
+    def stage(p: str) -> str:
+        p = os.fspath(p)
+        if p not in tmps:
+            fd, tmps[p] = tempfile.mkstemp(dir=os.path.dirname(os.path.abspath(p)), prefix=".tmp-",
+                                           suffix=os.path.basename(p))
+            os.close(fd)
+        return tmps[p]
+
+    try:
+        try:
+            yield stage
+        except OSError as exc:
+            user = {t: p for p, t in tmps.items()}
+            if exc.filename in user and exc.errno is not None:
+                raise OSError(exc.errno, exc.strerror, user[exc.filename]) from None
+            raise
+        except LayoutError as exc:
+            user = {t: p for p, t in tmps.items()}
+            if exc.source in user:
+                raise LayoutError(user[exc.source], exc.message, exc.key) from None
+            raise
+        mask = 0o666 & ~current_umask()
+        for p, tmp in tmps.items():
+            os.chmod(tmp, mask)
+            os.replace(tmp, p)
+        tmps.clear()
+    finally:
+        for tmp in tmps.values():
+            if os.path.exists(tmp):
+                os.unlink(tmp)

@@ -27,9 +27,11 @@ __all__ = [
     "MAX_GRID_CELLS",
     "layout_voxels",
     "cells_of",
+    "cell_owner",
     "library_id_for",
     "table_i_bricks",
     "brick_layout",
+    "cut",
 ]
 
 # Paper Table I, in kg, keyed by the sorted (short, long) footprint.
@@ -81,14 +83,29 @@ class Library:
 
     @classmethod
     def from_json(cls, path: str) -> "Library":
+        """The library of a JSON file (the bundled default; user files are
+        read through :func:`~stablelego_jax.formats.stablelego.as_library`,
+        which refuses non-regular files)."""
         try:
-            with open(path) as fh:
-                raw = json.load(fh)
+            with open(path, "rb") as fh:
+                data = fh.read()
         except OSError as exc:
             raise LayoutError(path, f"cannot read brick library: {exc.strerror}") from None
+        return cls.from_text(data, source=path)
+
+    @classmethod
+    def from_text(cls, data, source: str = "<library>") -> "Library":
+        """The library of JSON text (str or bytes); LayoutError naming ``source``."""
+        try:
+            text = data.decode("utf-8") if isinstance(data, bytes) else data
+            raw = json.loads(text)
+        except UnicodeDecodeError:
+            raise LayoutError(source, "brick library is not UTF-8 text") from None
         except json.JSONDecodeError as exc:
-            raise LayoutError(path, f"brick library is not valid JSON: {exc}") from None
-        return cls.from_dict(raw, source=path)
+            raise LayoutError(source, f"brick library is not valid JSON: {exc}") from None
+        except (ValueError, RecursionError) as exc:
+            raise LayoutError(source, f"brick library is not valid JSON: {str(exc)[:80]}") from None
+        return cls.from_dict(raw, source=source)
 
     @classmethod
     def from_dict(cls, raw: Mapping, source: str = "<library>") -> "Library":
@@ -103,9 +120,12 @@ class Library:
                 raise LayoutError(source, f"library entry {bid!r} lacks {', '.join(missing)}")
             h, w, m = entry["height"], entry["width"], entry["mass"]
             if not (_is_int(h) and _is_int(w) and h >= 1 and w >= 1):
-                raise LayoutError(source, f"library entry {bid!r} has a bad size {h}x{w}")
+                raise LayoutError(source, f"library entry {bid!r} has a bad size {cut(str(h))}x{cut(str(w))}")
+            if h > MAX_SIZE or w > MAX_SIZE:
+                raise LayoutError(source, f"library entry {bid!r}: size {h}x{w} too large "
+                                          f"(at most {MAX_SIZE} studs)")
             if not _is_number(m) or not math.isfinite(m) or m < 0:
-                raise LayoutError(source, f"library entry {bid!r} has a bad mass {m!r}")
+                raise LayoutError(source, f"library entry {bid!r} has a bad mass {cut(repr(m))}")
             bricks[str(bid)] = (int(h), int(w), float(m))
         return cls(bricks=bricks, source=source)
 
@@ -336,6 +356,29 @@ def _check_overlap(pos: np.ndarray, size: np.ndarray, source: str, keys) -> tupl
     return dims, flat, owner
 
 
+def cell_owner(layout: "Layout"):
+    """Sparse occupancy of ``layout``: ``lookup(cells)`` ((k, 3) int cells,
+    any coordinates) gives the index of the brick in each cell, -1 where
+    empty. Memory grows with the bricks' cells, not with the bounding box,
+    so bricks far apart (coordinates up to MAX_COORD) cost nothing extra."""
+    pos, size = layout.pos, layout.size
+    dims, flat, owner = _check_overlap(pos, size, layout.source, layout.keys)
+    order = np.argsort(flat, kind="stable")
+    keys, own = flat[order], owner[order]
+    hi = np.asarray(dims)
+
+    def lookup(cells) -> np.ndarray:
+        q = np.asarray(cells, np.int64).reshape(-1, 3)
+        out = np.full(len(q), -1, np.int64)
+        inside = (q >= 0).all(axis=1) & (q < hi).all(axis=1)
+        f = np.ravel_multi_index(q[inside].T, dims)
+        j = np.minimum(np.searchsorted(keys, f), len(keys) - 1)
+        out[inside] = np.where(keys[j] == f, own[j], -1)
+        return out
+
+    return lookup
+
+
 def _occupancy(pos: np.ndarray, size: np.ndarray, source: str, keys) -> np.ndarray:
     """Dense (X, Y, Z) grid of brick indices; raises LayoutError on overlap or a huge grid."""
     dims = _grid_dims(pos, size)
@@ -364,6 +407,11 @@ def cells_of(pos: np.ndarray, size: np.ndarray) -> tuple[np.ndarray, np.ndarray]
     dx, dy = local // sy, local % sy
     cells = np.stack([pos[owner, 0] + dx, pos[owner, 1] + dy, pos[owner, 2]], axis=1)
     return cells, owner
+
+
+def cut(s: str, limit: int = 40) -> str:
+    """``s`` cut to ``limit`` characters (keeps error messages readable)."""
+    return s if len(s) <= limit else s[: limit - 3] + "..."
 
 
 def _is_int(v) -> bool:

@@ -24,7 +24,7 @@ import dataclasses
 import numpy as np
 
 from .contacts import PTS_3, PTS_4, contact_levels, four_point_knobs, scene_contacts
-from .layout import Layout, cells_of
+from .layout import Layout, cell_owner, cells_of
 from .scene import BLOCK, Scene, boxes
 
 __all__ = ["Params", "ForceModel", "compile_layout", "compile_scene", "column_wrenches", "normal_groups",
@@ -173,8 +173,7 @@ def compile_layout(layout: Layout | Scene, params: Params = Params()) -> ForceMo
     L, Hl = params.stud, params.layer
     n = layout.n
     pos, size = layout.pos, layout.size
-    grid = layout.occupancy()
-    X, Y, Z = grid.shape
+    owner_at = cell_owner(layout)  # sparse: bricks far apart need no giant grid
     centre = np.stack(
         [(pos[:, 0] + size[:, 0] / 2) * L, (pos[:, 1] + size[:, 1] / 2) * L, (pos[:, 2] + 0.5) * Hl],
         axis=1,
@@ -183,7 +182,7 @@ def compile_layout(layout: Layout | Scene, params: Params = Params()) -> ForceMo
     cx, cy, cz = cells.T
 
     # --- knob connections: cell of an upper brick over a lower brick or the baseplate
-    below = np.where(cz > 0, grid[cx, cy, np.maximum(cz - 1, 0)], n)
+    below = np.where(cz > 0, owner_at(np.stack([cx, cy, cz - 1], axis=1)), n)
     conn = below >= 0
     c_up, c_lo = owner[conn], below[conn]
     kx, ky = (cx[conn] + 0.5) * L, (cy[conn] + 0.5) * L  # knob centre (m)
@@ -224,10 +223,7 @@ def compile_layout(layout: Layout | Scene, params: Params = Params()) -> ForceMo
     for axis in (0, 1):
         shifted = np.array(cells)
         shifted[:, axis] += 1
-        inside = shifted[:, axis] < grid.shape[axis]
-        nb = np.full(len(cells), -1)
-        s = shifted[inside]
-        nb[inside] = grid[s[:, 0], s[:, 1], s[:, 2]]
+        nb = owner_at(shifted)
         side = (nb >= 0) & (nb != owner)
         a, b = owner[side], nb[side]  # a on the - side, b on the + side
         face = (cells[side] + 0.5) * [L, L, Hl]

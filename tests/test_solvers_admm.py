@@ -68,7 +68,7 @@ def test_vmap_batch_matches_single_solves():
 
 def test_non_convergence_is_reported():
     path = os.path.join(EXAMPLES, "stablelego", "stair_20.json")
-    a = analyze(path, solver="jax", opts=SolverOptions(max_iter=50, check_every=50))
+    a = analyze(path, solver="jax", opts=SolverOptions(max_iter=50, check_every=50), fallback=False)
     assert not a.converged
     assert a.gap > 0 and np.isfinite(a.gap)
 

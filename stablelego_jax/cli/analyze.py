@@ -46,7 +46,8 @@ def _summary(a, support: dict | None = None) -> str:
     if getattr(a, "method", "ours") != "ours":
         return _baseline_summary(a)
     lines = [
-        f"{a.file}: {'STABLE' if a.stable else 'UNSTABLE'}  ({a.layout.n} bricks, solver {a.solver}, "
+        f"{a.file}: {'STABLE' if a.stable else 'UNSTABLE'}  ({a.layout.n} bricks, solver {a.solver}"
+        f"{' (' + '; '.join(a.retried) + ' did not converge)' if a.retried else ''}, "
         f"{'converged' if a.converged else 'NOT CONVERGED'}, {a.time_s * 1e3:.1f} ms)",
         f"  weakest brick {a.weakest!r}: score {a.scores[a.weakest]:.4f}",
     ]

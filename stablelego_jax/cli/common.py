@@ -5,7 +5,7 @@ import json
 import os
 import sys
 
-__all__ = ["solver_for", "png_target", "report_error"]
+__all__ = ["solver_for", "png_target", "report_error", "load_library"]
 
 
 def solver_for(args) -> str:
@@ -42,3 +42,18 @@ def report_error(path: str, exc: Exception, as_json: bool) -> None:
         print(json.dumps({"file": path, "error": msg}), flush=True)
     else:
         print(f"error: {msg}", file=sys.stderr, flush=True)
+
+
+def load_library(args) -> int:
+    """Read ``--library`` once, before any layout: ``args.library`` becomes
+    the Library. Returns 0, or 2 after one error line naming the library
+    file (a bad library is never blamed on a layout)."""
+    from ..formats.stablelego import as_library
+    from ..layout import LayoutError
+
+    try:
+        args.library = as_library(args.library)
+    except LayoutError as exc:
+        print(f"error: {exc}", file=sys.stderr, flush=True)
+        return 2
+    return 0

@@ -3,6 +3,8 @@ from __future__ import annotations
 
 import sys
 
+from .common import report_error
+
 __all__ = ["add_parser", "cmd_export"]
 
 
@@ -24,29 +26,31 @@ def add_parser(sub) -> None:
 
 
 def cmd_export(args) -> int:
+    from ..files import staged_outputs
     from ..formats.ldraw import unsupported_message, write_ldr
     from ..formats.reader import load_layout, write_layout
-    from ..layout import LayoutError
 
     if not (args.ldr or args.json or args.txt):
         print("error: export needs at least one of --ldr OUT, --json OUT, --txt OUT", file=sys.stderr)
         return 2
+    outs = [(args.ldr, "LDraw"), (args.json, "StableLego JSON"), (args.txt, "text")]
     try:
         left_out: dict = {}
         layout = load_layout(args.layout, args.library, args.skip_unsupported, left_out)
         if left_out:
             print(f"warning: {args.layout}: left out, {unsupported_message(left_out)}", file=sys.stderr)
-        if args.ldr:
-            write_ldr(layout, args.ldr, color=args.color, step=args.step)
-            print(f"{args.ldr}: {layout.n} bricks (LDraw)")
-        if args.json:
-            write_layout(layout, args.json, fmt="json")
-            print(f"{args.json}: {layout.n} bricks (StableLego JSON)")
-        if args.txt:
-            write_layout(layout, args.txt, fmt="text")
-            print(f"{args.txt}: {layout.n} bricks (text)")
-    except (LayoutError, OSError) as exc:
-        text = str(exc)
-        print(f"error: {text if args.layout in text else args.layout + ': ' + text}", file=sys.stderr)
+        # every output is checked first and renamed into place only when all are written
+        with staged_outputs([p for p, _ in outs]) as stage:
+            if args.ldr:
+                write_ldr(layout, stage(args.ldr), color=args.color, step=args.step)
+            if args.json:
+                write_layout(layout, stage(args.json), fmt="json")
+            if args.txt:
+                write_layout(layout, stage(args.txt), fmt="text")
+    except Exception as exc:  # one line, never a traceback
+        report_error(args.layout, exc, False)
         return 1
+    for p, what in outs:
+        if p:
+            print(f"{p}: {layout.n} bricks ({what})")
     return 0

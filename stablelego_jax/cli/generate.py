@@ -58,8 +58,10 @@ def cmd_generate(args) -> int:
     except ValueError as exc:
         print(f"error: --bricks: {exc}", file=sys.stderr)
         return 2
-    if args.grid < 2:
-        print(f"error: --grid must be >= 2, got {args.grid}", file=sys.stderr)
+    from ..generate.mesh import MAX_GRID
+
+    if not 2 <= args.grid <= MAX_GRID:  # checked before anything is allocated
+        print(f"error: --grid must be between 2 and {MAX_GRID}, got {args.grid}", file=sys.stderr)
         return 2
     bar = Progress(len(args.meshes), enabled=not args.quiet)
     used: set = set()

@@ -12,6 +12,7 @@ import argparse
 import sys
 
 from . import analyze, export, generate, repair, score, sequence, train
+from .common import load_library
 
 __all__ = ["build_parser", "main"]
 
@@ -33,13 +34,25 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv=None) -> int:
+    """Run one command; its exit status: 0 when everything asked was done,
+    1 when some input failed, 2 for a usage or library error, 130 on Ctrl-C
+    (one line, no traceback; ``score`` resumes where it stopped)."""
     from ..blas import xla_cpu_flags
 
     args = build_parser().parse_args(argv)
     # before JAX's backend starts (a no-op once it has, e.g. in tests):
     # computations run inline on the calling thread (see stablelego_jax.blas)
     xla_cpu_flags()
-    return args.func(args)
+    try:
+        if getattr(args, "library", None) is not None:
+            err = load_library(args)
+            if err:
+                return err
+        return args.func(args)
+    except KeyboardInterrupt:
+        resume = " (rerun the same command to resume)" if args.cmd == "score" else ""
+        print(f"stablelego {args.cmd}: interrupted{resume}", file=sys.stderr, flush=True)
+        return 130
 
 
 if __name__ == "__main__":

@@ -158,6 +158,7 @@ def _write(result, src: str, out: str, library) -> None:
 
 
 def cmd_repair(args) -> int:
+    from ..files import staged_outputs
     from ..formats.reader import load_layout
     from ..layout import LayoutError
     from ..design.repair import RepairOptions, greedy_repair, repair
@@ -172,32 +173,39 @@ def cmd_repair(args) -> int:
                                     "rotated bricks cannot be repaired yet")
         if layout.fmt == "dataset" and os.path.exists(args.out):
             raise LayoutError(args.out, "already exists (dataset objects are written as new folders)")
-        opts = RepairOptions(region=args.region, max_add=args.max_add, allow_remove=args.allow_remove,
-                             verify=args.verify, sizes=_library_sizes(args.library) if args.library else None)
-        result = (repair if args.method == "gradient" else greedy_repair)(layout, opts)
-        if layout.fmt == "text":
-            result = _relabel_text(result, path)
-        if result.stable:
-            _write(result, path, args.out, args.library)
-        png = None
-        if args.png:
-            from ..render import render_pair
+        if layout.fmt == "dataset" and not os.path.isdir(os.path.dirname(os.path.abspath(args.out))):
+            raise LayoutError(args.out, "cannot write: its folder does not exist")
+        files = [args.png, args.html] + ([] if layout.fmt == "dataset" else [args.out])
+        # every output is checked before the repair runs and renamed into place only when all are written
+        with staged_outputs(files) as stage:
+            opts = RepairOptions(region=args.region, max_add=args.max_add, allow_remove=args.allow_remove,
+                                 verify=args.verify, sizes=_library_sizes(args.library) if args.library else None)
+            result = (repair if args.method == "gradient" else greedy_repair)(layout, opts)
+            if layout.fmt == "text":
+                result = _relabel_text(result, path)
+            png = None
+            if args.png:
+                from ..render import render_pair
 
-            b, a = result.before, result.after
-            render_pair(b.layout, [b.scores[k] for k in b.layout.keys], a.layout, [a.scores[k] for k in a.layout.keys],
-                        args.png, titles=("before", "after repair" if result.stable else "after (still unstable)"))
-            png = args.png
-        page = None
-        if args.html:
-            from ..render_html import Frame, html_frames
+                b, a = result.before, result.after
+                render_pair(b.layout, [b.scores[k] for k in b.layout.keys], a.layout,
+                            [a.scores[k] for k in a.layout.keys], stage(args.png),
+                            titles=("before", "after repair" if result.stable else "after (still unstable)"))
+                png = args.png
+            page = None
+            if args.html:
+                from ..render_html import Frame, html_frames
 
-            b, a = result.before, result.after
-            html_frames([Frame(b.layout, [b.scores[k] for k in b.layout.keys], label="before",
-                               note=f"before: {'stable' if b.stable else 'UNSTABLE'}, weakest {b.weakest!r}"),
-                         Frame(a.layout, [a.scores[k] for k in a.layout.keys], label="after",
-                               note=f"after repair: {'stable' if a.stable else 'still UNSTABLE'}, "
-                                    f"{result.added} brick(s) added")], args.html, title=f"{path}: repair")
-            page = args.html
+                b, a = result.before, result.after
+                html_frames([Frame(b.layout, [b.scores[k] for k in b.layout.keys], label="before",
+                                   note=f"before: {'stable' if b.stable else 'UNSTABLE'}, weakest {b.weakest!r}"),
+                             Frame(a.layout, [a.scores[k] for k in a.layout.keys], label="after",
+                                   note=f"after repair: {'stable' if a.stable else 'still UNSTABLE'}, "
+                                        f"{result.added} brick(s) added")], stage(args.html),
+                            title=f"{path}: repair")
+                page = args.html
+            if result.stable:  # the dataset folder last: the files above are complete by now
+                _write(result, path, args.out if layout.fmt == "dataset" else stage(args.out), args.library)
     except (LayoutError, OSError, ValueError, RuntimeError) as exc:
         report_error(path, exc, args.json)
         return 1

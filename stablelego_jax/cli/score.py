@@ -76,7 +76,7 @@ def cmd_score(args) -> int:
         return 2
     print(
         f"{st.scored} scored, {st.skipped} already in {args.out}, {st.errors} errors, "
-        f"{st.not_converged} not converged; solve {st.solve_s:.1f} s, compile {st.compile_s:.1f} s "
+        f"{st.not_converged} not converged ({st.retried} solved again); solve {st.solve_s:.1f} s, compile {st.compile_s:.1f} s "
         f"({st.compiles} shapes), wall {st.wall_s:.1f} s",
         file=sys.stderr,
     )

@@ -49,6 +49,10 @@ def load_layout(path: str, library: Library | str | None = None, skip_unsupporte
     lib = as_library(library)
     if os.path.isdir(path):
         tg = os.path.join(path, "task_graph.json")
+        try:
+            os.listdir(path)
+        except OSError as exc:
+            raise LayoutError(path, f"cannot read folder: {exc.strerror}") from None
         if not os.path.isfile(tg):
             raise LayoutError(path, "folder is not a StableLego dataset object (no task_graph.json)")
         lay = parse_json_layout(read_json(tg), lib, source=tg)

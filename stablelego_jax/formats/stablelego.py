@@ -13,7 +13,7 @@ import math
 import re
 from typing import Mapping
 
-from ..files import cut, read_text
+from ..files import cut, read_bytes, read_text
 from ..layout import (
     MAX_COORD,
     TABLE_I_MASS_KG,
@@ -206,7 +206,8 @@ def as_library(library) -> Library:
         return default_library()
     if isinstance(library, Library):
         return library
-    return Library.from_json(str(library))
+    path = str(library)
+    return Library.from_text(read_bytes(path, "brick library"), source=path)
 
 
 def read_json(path: str):

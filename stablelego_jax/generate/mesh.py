@@ -35,11 +35,17 @@ message starts with the file name.
 from __future__ import annotations
 
 import dataclasses
+import io
 import os
 
 import numpy as np
 
+from ..files import read_bytes
+from ..layout import LayoutError
+
 __all__ = [
+    "MAX_GRID",
+    "ply_strip_faces",
     "MESH_SUFFIXES",
     "UP_AXES",
     "FILL_MODES",
@@ -52,6 +58,9 @@ __all__ = [
 ]
 
 #: File suffixes :func:`load_mesh` accepts (lower case).
+#: Largest ``grid`` (cells per axis): the voxelisation holds several grid^3
+#: arrays (int64 ray counts among them), 134 MB each at 256.
+MAX_GRID = 256
 MESH_SUFFIXES = (".stl", ".obj", ".ply", ".off", ".glb", ".gltf")
 #: Values of ``up``: the mesh axis that points up. "auto": y for glTF/GLB
 #: (Y-up by the glTF specification), z for everything else.
@@ -94,7 +103,8 @@ class VoxelizedMesh:
 
 
 def load_mesh(path: str):
-    """Read a mesh file into one ``trimesh.Trimesh`` (scenes flattened).
+    """Read a mesh file into one ``trimesh.Trimesh`` (scenes flattened; PLY
+    triangle strips read as triangles).
 
     Raises MeshError naming ``path`` for a missing, unreadable or empty file.
     """
@@ -110,10 +120,32 @@ def load_mesh(path: str):
         raise MeshError(path, f"unsupported mesh format {ext or '(no suffix)'!r} "
                               f"(expected one of {', '.join(MESH_SUFFIXES)})")
     try:
-        scene = trimesh.load_scene(path, skip_materials=True)
+        data = read_bytes(path, "mesh file")  # refuses named pipes and devices
+    except LayoutError as exc:
+        raise MeshError(path, exc.message) from None
+    file_obj = None
+    if ext == ".stl" and len(data) >= 84 and 84 + 50 * int.from_bytes(data[80:84], "little") == len(data):
+        # binary STL: its 80-byte header is free text, often not UTF-8, which trimesh would
+        # try to decode with an optional package; the header carries nothing we use
+        file_obj = io.BytesIO(b" " * 80 + data[80:])
+    elif ext in (".stl", ".obj", ".off"):
+        try:
+            data.decode("utf-8")
+        except UnicodeDecodeError:
+            if ext == ".stl":
+                raise MeshError(path, "not an STL mesh: neither binary STL (its size does not match its "
+                                      "triangle count) nor UTF-8 text") from None
+            raise MeshError(path, f"not an {ext[1:].upper()} mesh: not UTF-8 text") from None
+    try:
+        if file_obj is not None:
+            scene = trimesh.load_scene(file_obj, file_type="stl", skip_materials=True)
+        else:
+            scene = trimesh.load_scene(path, skip_materials=True)
         mesh = _flatten(scene)
+    except ImportError:  # an optional package trimesh wanted for this file
+        raise MeshError(path, f"cannot read mesh: not a valid {ext[1:].upper()} file") from None
     except Exception as exc:  # trimesh raises many kinds on junk input
-        raise MeshError(path, f"cannot read mesh ({type(exc).__name__}: {_cut(str(exc))})") from None
+        raise MeshError(path, f"cannot read mesh: not a valid {ext[1:].upper()} file ({_cut(str(exc)) or 'unreadable'})") from None
     if mesh is None:
         raise MeshError(path, "mesh has no triangles")
     v = np.asarray(mesh.vertices, np.float64)
@@ -134,6 +166,8 @@ def _flatten(scene):
         transform, gname = scene.graph[node]
         geom = scene.geometry[gname]
         faces = getattr(geom, "faces", None)
+        if faces is None or len(faces) == 0:
+            faces = ply_strip_faces(geom)  # a PLY of triangle strips loads as points
         if faces is None or len(faces) == 0:  # paths, point clouds
             continue
         v = trimesh.transformations.transform_points(np.asarray(geom.vertices, np.float64), transform)
@@ -143,6 +177,34 @@ def _flatten(scene):
     if not fs:
         return None
     return trimesh.Trimesh(np.concatenate(vs), np.concatenate(fs), process=True)
+
+
+def ply_strip_faces(geom):
+    """Triangles of a PLY ``tristrips`` element (which trimesh reads as bare
+    points): each strip split at -1 restarts, triangle k of a strip is
+    (s[k], s[k+1], s[k+2]) with every other one flipped to keep the
+    winding, degenerate ones dropped. None when ``geom`` has no strips."""
+    el = (getattr(geom, "metadata", None) or {}).get("_ply_raw", {}).get("tristrips")
+    if not el or not el.get("length") or not isinstance(el.get("data"), dict):
+        return None
+    n_vert = len(getattr(geom, "vertices", ()))
+    tris = []
+    for strips in el["data"].values():
+        for strip in strips:
+            idx = np.asarray(strip, np.int64).ravel()
+            for part in np.split(idx, np.nonzero(idx < 0)[0]):
+                part = part[part >= 0]
+                for k in range(len(part) - 2):
+                    a, b, c = part[k: k + 3]
+                    if len({int(a), int(b), int(c)}) == 3:
+                        tris.append((a, b, c) if k % 2 == 0 else (b, a, c))
+        break  # one list property: the vertex indices
+    if not tris:
+        return None
+    faces = np.asarray(tris, np.int64)
+    if faces.max() >= n_vert:
+        raise ValueError(f"triangle strip refers to vertex {int(faces.max())} of {n_vert}")
+    return faces
 
 
 def resolve_up(up: str, source: str = "") -> str:
@@ -249,8 +311,8 @@ def voxelize(source, grid: int = 20, up: str = "auto", fill: str = "auto") -> Vo
     from scipy import ndimage  # imported here: building the CLI parser needs this module, not scipy
 
     grid = int(grid)
-    if grid < 2:
-        raise ValueError(f"grid must be >= 2, got {grid}")
+    if not 2 <= grid <= MAX_GRID:
+        raise ValueError(f"grid must be between 2 and {MAX_GRID}, got {grid}")
     if fill not in FILL_MODES:
         raise ValueError(f"fill must be one of {FILL_MODES}, got {fill!r}")
     if isinstance(source, (str, os.PathLike)):
