@@ -139,7 +139,7 @@ def staged_outputs(paths):
         except LayoutError as exc:
             user = {t: p for p, t in tmps.items()}
             if exc.source in user:
-                raise LayoutError(user[exc.source], exc.message, exc.key) from None
+                raise LayoutError(user[exc.source], exc.message, exc.key, exc.what) from None
             raise
         mask = 0o666 & ~current_umask()
         for p, tmp in tmps.items():

@@ -140,7 +140,10 @@ def test_ctrl_c_during_score_one_line_exit_130_resumable(tmp_path):
     env = dict(os.environ, PYTHONPATH=os.path.abspath(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
     argv = [sys.executable, "-m", "stablelego_jax", "score", str(d), "--out", str(out), "--solver", "exact",
             "--quiet"]
-    p = subprocess.Popen(argv, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    # SIGINT at its default in the child, as in a terminal (a shell's background job starts
+    # with it ignored, and Python then never raises KeyboardInterrupt)
+    p = subprocess.Popen(argv, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                         preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     t_end = time.time() + 120
     while time.time() < t_end and p.poll() is None and (not out.exists() or out.stat().st_size < 2000):
         time.sleep(0.05)
