@@ -14,7 +14,7 @@ from ..model import NORMAL, SIDE, ForceModel
 # scipy.sparse and scipy.optimize are imported where they are used: importing
 # them costs about half a second, which the JAX path of a short run never needs.
 
-__all__ = ["solve_exact", "ExactResult", "EXACT_METHODS", "equilibrium_matrix"]
+__all__ = ["solve_exact", "ExactResult", "EXACT_METHODS", "equilibrium_matrix", "lp_arrays"]
 
 
 class ExactResult(dict):
@@ -76,9 +76,18 @@ def solve_exact(model: ForceModel, method: str = "highs", scale: bool = True) ->
                        status=res.message, success=bool(res.status == 0))
 
 
-def _solve_lp(model: ForceModel, method: str, scale: bool):
+def lp_arrays(model: ForceModel, scale: bool = True):
+    """The Eq. 9 LP that :func:`solve_exact` hands HiGHS, as arrays:
+    ``(c, A_eq, b_eq, A_ub, b_ub, bounds)`` for
+    ``min c x  s.t.  A_eq x = b_eq,  A_ub x <= b_ub,  bounds[:, 0] <= x <= bounds[:, 1]``
+    (``A_eq``, ``A_ub`` ``scipy.sparse.csr_matrix``; ``bounds`` (N, 2),
+    +-inf where unbounded). Variables: the m forces first (N, the columns of
+    ``model``), then k drags, r+ (6 n), r- (6 n) and n max drags.
+
+    ``scale``: torque rows in N stud instead of N m (see :func:`solve_exact`).
+    For other LP solvers (benchmarks); HiGHS solves exactly these arrays.
+    """
     import scipy.sparse as sp
-    from scipy.optimize import linprog
 
     p = model.params
     m, n = model.m, model.n
@@ -113,4 +122,11 @@ def _solve_lp(model: ForceModel, method: str, scale: bool):
     bounds = np.concatenate(
         [np.stack([lo, np.full(m, np.inf)], 1), np.tile([0.0, np.inf], (k + 12 * n + n, 1))]
     )
+    return c, A_eq, b_eq, A_ub, b_ub, bounds
+
+
+def _solve_lp(model: ForceModel, method: str, scale: bool):
+    from scipy.optimize import linprog
+
+    c, A_eq, b_eq, A_ub, b_ub, bounds = lp_arrays(model, scale)
     return linprog(c, A_ub=A_ub, b_ub=b_ub, A_eq=A_eq, b_eq=b_eq, bounds=bounds, method=method)
