@@ -17,7 +17,7 @@ from .solvers.exact import solve_exact
 # The JAX solvers are imported where they are used: importing JAX costs most
 # of a second, which an exact-solver run never needs.
 
-__all__ = ["Analysis", "analyze", "analyze_layout", "analyze_baseline", "make_analysis", "error_message",
+__all__ = ["Analysis", "analyze", "analyze_layout", "analyze_exact", "analyze_baseline", "make_analysis", "error_message",
            "solve_jax", "solver_fn", "resolve_unconverged", "LONGER_RUN"]
 
 #: A JAX run stopped at its iteration cap is tried again with this many times the cap.
@@ -212,11 +212,8 @@ def analyze_layout(
         raise ValueError(f"method {method!r} runs on the exact solver only (solver='exact'), not {solver!r}")
     t0 = time.perf_counter()
     model = compile_layout(layout, params)
-    if method != "ours":
-        return analyze_baseline(layout, model, method, t0, exact_method=exact_method, scale=exact_scale)
-    if solver == "exact":
-        r = solve_exact(model, method=exact_method, scale=exact_scale)
-        return make_analysis(layout, model, r.f, "exact", r.success, t0, objective=r.objective)
+    if method != "ours" or solver == "exact":
+        return analyze_exact(layout, model, method, t0, exact_method, exact_scale)
     if solver not in ("jax", "admm"):
         raise ValueError(f"unknown solver {solver!r} (expected 'jax', 'admm' or 'exact')")
     if solver == "admm":
@@ -235,6 +232,18 @@ def analyze_layout(
 
         a = resolve_unconverged(a, opts if opts is not None or solver == "admm" else ipm.IPMOptions(), params)
     return a
+
+
+def analyze_exact(layout: Layout, model: ForceModel, method: str = "ours", t0: float | None = None,
+                  exact_method: str = "highs", exact_scale: bool = True) -> Analysis:
+    """The :class:`Analysis` of ``layout`` (compiled as ``model``) by HiGHS:
+    paper Eq. 9 (``method`` "ours") or a baseline (:func:`analyze_baseline`);
+    ``t0``: start time (perf_counter; None: now)."""
+    t0 = time.perf_counter() if t0 is None else t0
+    if method != "ours":
+        return analyze_baseline(layout, model, method, t0, exact_method=exact_method, scale=exact_scale)
+    r = solve_exact(model, method=exact_method, scale=exact_scale)
+    return make_analysis(layout, model, r.f, "exact", r.success, t0, objective=r.objective)
 
 
 def analyze(

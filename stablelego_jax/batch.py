@@ -31,7 +31,7 @@ from typing import Iterable, Iterator, Sequence
 import jax
 import numpy as np
 
-from .analysis import analyze_baseline, error_message, make_analysis, resolve_unconverged
+from .analysis import analyze_exact, error_message, make_analysis, resolve_unconverged
 from .blas import one_blas_thread
 from .files import atomic_write, atomic_write_text, cut, read_text
 from .formats.dataset import score_grid
@@ -41,7 +41,6 @@ from .model import Params, compile_layout
 from .progress import Progress
 from .solvers import admm, ipm
 from .solvers.compiled import STATS, compiled
-from .solvers.exact import solve_exact
 from .solvers.problem import (
     MIN_BRICKS,
     MIN_COLUMNS,
@@ -415,16 +414,7 @@ def iter_analyses(
 def _exact_items(items, method, exact_method, exact_scale) -> list:
     """[(i, Analysis)] of compiled ``items`` ((i, layout, model)) solved by
     HiGHS one at a time (``method``: ours or a baseline)."""
-    out = []
-    for i, lay, model in items:
-        t1 = time.perf_counter()
-        if method == "ours":
-            r = solve_exact(model, method=exact_method, scale=exact_scale)
-            a = make_analysis(lay, model, r.f, "exact", r.success, t1, objective=r.objective)
-        else:
-            a = analyze_baseline(lay, model, method, t1, exact_method=exact_method, scale=exact_scale)
-        out.append((i, a))
-    return out
+    return [(i, analyze_exact(lay, model, method, None, exact_method, exact_scale)) for i, lay, model in items]
 
 
 def _ignore_sigint() -> None:
