@@ -1,5 +1,5 @@
 """Threads of the CPU backend: one OpenBLAS thread for JAX's CPU linear
-algebra, and XLA's CPU settings (made before JAX's backend starts).
+algebra, and inline dispatch of JAX's CPU computations.
 
 JAX's CPU LAPACK kernels (Cholesky, LU, triangular solves) call SciPy's
 bundled OpenBLAS. Its worker threads spin while they wait, and on a busy
@@ -11,8 +11,8 @@ quiet machine one thread was faster too (5.5 s against 8.1 s). :func:`one_blas_t
 sets the count to 1 for a block and restores it after; without SciPy's
 OpenBLAS (another build) it does nothing.
 
-:func:`xla_cpu_flags` configures XLA's CPU backend for this process
-before JAX starts it: computations run inline on the calling thread
+:func:`inline_cpu_dispatch`, called by the command line before JAX's
+backend starts, runs CPU computations inline on the calling thread
 (JAX's ``jax_cpu_enable_async_dispatch`` off). Batched ``score`` runs hung
 three times on this machine (0 CPU, the main thread waiting forever in
 ``device_get`` for an asynchronously dispatched computation: twice with
@@ -25,31 +25,20 @@ from __future__ import annotations
 import contextlib
 import functools
 
-__all__ = ["one_blas_thread", "openblas_library", "xla_cpu_flags"]
+__all__ = ["one_blas_thread", "openblas_library", "inline_cpu_dispatch"]
 
 
-def xla_cpu_flags(host_devices: int | None = None, eigen_threads: bool = True) -> str:
-    """Configure XLA's CPU backend through the environment, before JAX's
-    backend starts (a no-op after; it imports JAX): inline dispatch
-    (``jax_cpu_enable_async_dispatch`` off, unless the environment sets
-    ``JAX_CPU_ENABLE_ASYNC_DISPATCH=true``), ``--xla_cpu_multi_thread_eigen=false`` unless
-    ``eigen_threads``, and ``--xla_force_host_platform_device_count`` =
-    ``host_devices`` when given. Settings the user made win. Returns
-    ``XLA_FLAGS``."""
+def inline_cpu_dispatch() -> None:
+    """Run JAX's CPU computations inline on the calling thread
+    (``jax_cpu_enable_async_dispatch`` off) unless the environment sets
+    ``JAX_CPU_ENABLE_ASYNC_DISPATCH=true``. Imports JAX; takes effect only
+    before JAX's backend starts."""
     import os
 
     if os.environ.get("JAX_CPU_ENABLE_ASYNC_DISPATCH", "false").lower() in ("0", "false"):
         import jax
 
         jax.config.update("jax_cpu_enable_async_dispatch", False)
-    flags = os.environ.get("XLA_FLAGS", "").split()
-    have = {f.split("=")[0] for f in flags}
-    if not eigen_threads and "--xla_cpu_multi_thread_eigen" not in have:
-        flags.append("--xla_cpu_multi_thread_eigen=false")
-    if host_devices and "--xla_force_host_platform_device_count" not in have:
-        flags.append(f"--xla_force_host_platform_device_count={int(host_devices)}")
-    os.environ["XLA_FLAGS"] = " ".join(flags)
-    return os.environ["XLA_FLAGS"]
 
 
 @contextlib.contextmanager

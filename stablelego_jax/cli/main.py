@@ -37,12 +37,12 @@ def main(argv=None) -> int:
     """Run one command; its exit status: 0 when everything asked was done,
     1 when some input failed, 2 for a usage or library error, 130 on Ctrl-C
     (one line, no traceback; ``score`` resumes where it stopped)."""
-    from ..blas import xla_cpu_flags
+    from ..blas import inline_cpu_dispatch
 
     args = build_parser().parse_args(argv)
     # before JAX's backend starts (a no-op once it has, e.g. in tests):
     # computations run inline on the calling thread (see stablelego_jax.blas)
-    xla_cpu_flags()
+    inline_cpu_dispatch()
     try:
         if getattr(args, "library", None) is not None:
             err = load_library(args)
