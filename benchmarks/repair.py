@@ -49,6 +49,7 @@ from stablelego_jax.generate.procedural import lever, stairs, tower, voxel_layou
 from stablelego_jax.analysis import analyze_layout  # noqa: E402
 from stablelego_jax.batch import read_results  # noqa: E402
 from stablelego_jax.design.repair import RepairOptions, greedy_repair, repair, rollback_repair  # noqa: E402
+from stablelego_jax.solvers.compiled import STATS  # noqa: E402
 
 FAMILIES = ("stairs", "tower", "lever", "loaded", "voxels")
 METHODS = {"gradient": repair, "greedy": greedy_repair, "rollback": rollback_repair}
@@ -104,9 +105,11 @@ def layouts(n: int, max_bricks: int, max_failing: int):
 def run(name, lay, opts: RepairOptions) -> dict:
     row = {"name": name, "family": name.split("/")[0], "n_bricks": lay.n}
     for m, fn in METHODS.items():
+        c0, s0, e0 = STATS.compiles, STATS.compile_s, STATS.evicted
         t = time.perf_counter()
         r = fn(lay, opts)
         row[m] = {
+            "compiles": STATS.compiles - c0, "compile_s": round(STATS.compile_s - s0, 3), "evicted": STATS.evicted - e0,
             "stable": bool(r.stable), "added": r.added, "exact_calls": r.exact_calls, "soft_calls": r.soft_calls,
             "solver_calls": r.solver_calls, "time_s": round(time.perf_counter() - t, 3), "kept": round(r.kept, 4),
             "changes": [c.describe() for c in r.changes],
@@ -137,6 +140,15 @@ def table(rows) -> str:
             f"{np.mean(calls):.1f}{extra} | {np.mean(calls) / greedy_calls:.2f} | "
             f"{np.mean(ts):.2f} s, {np.median(ts):.2f} s | {100 * np.mean(kept):.1f}% |")
     lines.append("")
+    if all("compiles" in r["gradient"] for r in rows):
+        for m in METHODS:
+            comp = sum(r[m]["compiles"] for r in rows)
+            cs = sum(r[m]["compile_s"] for r in rows)
+            ts = sum(r[m]["time_s"] for r in rows)
+            lines.append(f"- {m}: {comp} executables compiled ({cs:.1f} s of {ts:.1f} s wall, "
+                         f"{sum(r[m]['evicted'] for r in rows)} evicted); wall without compiles "
+                         f"{(ts - cs) / n:.2f} s per layout")
+        lines.append("")
     both = [r for r in rows if r["gradient"]["stable"] and r["greedy"]["stable"]]
     g_only = [r["name"] for r in rows if r["gradient"]["stable"] and not r["greedy"]["stable"]]
     r_only = [r["name"] for r in rows if r["greedy"]["stable"] and not r["gradient"]["stable"]]

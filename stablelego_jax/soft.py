@@ -69,6 +69,17 @@ class SoftProblem(NamedTuple):
       brick (a base brick is its own unit). Bricks of one unit share the
       weight of that first brick, and contacts inside a unit scale with it
       once.
+    level: (n,) int32 layer (z) of each brick; -1 for padding.
+    slot: (n,) int32 or None: the brick's place ``l B + s`` (layer l, slot
+      s) in the layered factorisation of the solver, ``L B`` for padding;
+      None: the dense one. Set by
+      :func:`~stablelego_jax.solvers.problem.layer_soft`.
+    layers: (L, B) int8 zeros or None: the layered factorisation's shape
+      (L layers of B slots; only the shape is used).
+    chunk: (C, 8) int32 or None (with ``slot``): the real columns grouped by
+      brick pair, at most 8 per row (``m`` = none), so that the layered
+      factorisation assembles one 12 x 12 block per row instead of one per
+      column.
     """
 
     col_brick: np.ndarray
@@ -79,6 +90,10 @@ class SoftProblem(NamedTuple):
     mass: np.ndarray
     brick_mask: np.ndarray
     unit: np.ndarray
+    level: np.ndarray
+    slot: np.ndarray | None = None
+    layers: np.ndarray | None = None
+    chunk: np.ndarray | None = None
 
 
 @dataclasses.dataclass(frozen=True)
@@ -286,6 +301,7 @@ def compile_soft(layout: Layout, candidates: Sequence[Candidate] = (), params: P
         mass=np.concatenate(masses),
         brick_mask=np.ones(n, bool),
         unit=np.concatenate(unit).astype(np.int32),
+        level=np.concatenate([layout.pos[:, 2]] + [np.asarray(c.pos)[:, 2] for c in candidates]).astype(np.int32),
     )
     return SoftLayout(
         base=layout, candidates=tuple(candidates), problem=prob, params=params,
@@ -368,6 +384,7 @@ def compile_placements(pos, size, mass, params: Params = Params()) -> SoftProble
         col_brick=col_brick, col_coef=col_coef, col_kind=col_kind,
         col_mask=np.ones(len(col_kind), bool), group=normal_groups(col_brick, col_kind, k),
         mass=mass, brick_mask=np.ones(k, bool), unit=np.arange(k, dtype=np.int32),
+        level=pos[:, 2].astype(np.int32),
     )
 
 

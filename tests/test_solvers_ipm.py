@@ -1,4 +1,4 @@
-"""Interior-point solver: block algebra, layering, and agreement with HiGHS."""
+"""Interior-point solver: layering, and agreement with HiGHS."""
 import json
 import os
 
@@ -18,31 +18,6 @@ from stablelego_jax.solvers.exact import solve_exact
 from stablelego_jax.solvers.problem import layer_bucket, layer_plan, layered_problem, stack_problems, to_layered
 
 pytestmark = pytest.mark.usefixtures("x64")  # the tests jit the solver themselves
-
-
-def _block_tridiagonal(L, k, seed=0):
-    rng = np.random.default_rng(seed)
-    N = L * k
-    X = rng.normal(size=(N, N))
-    M = X @ X.T
-    for i in range(L):
-        for j in range(L):
-            if abs(i - j) > 1:
-                M[i * k:(i + 1) * k, j * k:(j + 1) * k] = 0.0
-    M += N * np.eye(N)  # diagonally dominant after the cut: still SPD
-    D = np.stack([M[l * k:(l + 1) * k, l * k:(l + 1) * k] for l in range(L)])
-    E = np.stack([M[(l + 1) * k:(l + 2) * k, l * k:(l + 1) * k] if l < L - 1 else np.zeros((k, k))
-                  for l in range(L)])
-    return M, D, E
-
-
-@pytest.mark.parametrize("L,k", [(1, 5), (4, 3), (7, 6)])
-def test_block_cholesky_solves_the_block_tridiagonal_system(L, k):
-    M, D, E = _block_tridiagonal(L, k)
-    C, G = ipm.block_cholesky(jnp.asarray(D), jnp.asarray(E))
-    r = np.random.default_rng(1).normal(size=L * k)
-    x = ipm.block_solve(C, G, jnp.asarray(r).reshape(L, k)).reshape(-1)
-    np.testing.assert_allclose(np.asarray(x), np.linalg.solve(M, r), rtol=1e-10, atol=1e-12)
 
 
 def test_layered_numbering_keeps_the_physics():

@@ -105,3 +105,33 @@ def test_merge_plans_moves_small_buckets_when_cheaper_than_a_compile():
         assert into[t] == t
     assert merge_plans(sizes, compile_s=0.0) == {k: k for k in sizes}
     assert len(sizes[("dense", 32)]) == 100  # the caller's dict is untouched
+
+
+def test_layer_soft_places_bricks_layer_by_layer():
+    from stablelego_jax.solvers.problem import layer_soft, plan_soft, soft_layer_plan, soft_plan
+
+    lay = load_layout(os.path.join(EXAMPLES, "stablelego", "stair_20.json"))
+    soft = compile_soft(lay, [candidate_brick([(12, 21, 0, 2, 2), (12, 21, 1, 2, 2), (12, 21, 2, 2, 2)])])
+    p = soft.problem
+    L, B = soft_layer_plan(p)
+    z = p.level - p.level.min()
+    assert L == z.max() + 1 and B == np.bincount(z).max()
+    q = layer_soft(p)
+    Lp, Bp = q.layers.shape
+    assert (Lp, Bp) == layer_bucket(L, B)
+    np.testing.assert_array_equal(q.slot // Bp, z)  # each brick in its own layer
+    assert len(set(q.slot.tolist())) == p.mass.shape[0]  # one slot per brick
+    np.testing.assert_array_equal(q.col_brick, p.col_brick)  # indices unchanged
+    # every column joins one layer or two adjacent ones
+    sl = np.concatenate([q.slot, [Lp * Bp]])[q.col_brick] // Bp
+    real = sl[:, 1] < Lp
+    assert (np.abs(sl[real, 0] - sl[real, 1]) <= 1).all()
+    padded = pad_soft(q, 64, 2048, 32)
+    assert (padded.slot[p.mass.shape[0]:] == Lp * Bp).all() and (padded.level[p.mass.shape[0]:] == -1).all()
+    assert stack_soft([padded, padded]).slot.shape == (2, 64)
+    with pytest.raises(ValueError, match="layer slots"):
+        layer_soft(p, 4, 2)
+    assert soft_plan(p) == ("dense",) and plan_soft(p).slot is None  # small: dense
+    tall = compile_soft(cuboid(4, 4, 12))
+    key = soft_plan(tall.problem)
+    assert key[0] == "layered" and plan_soft(tall.problem).layers.shape == key[1:]

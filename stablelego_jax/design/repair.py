@@ -48,7 +48,7 @@ from ..model import Params
 from ..score import residual_bad
 from ..soft import Candidate, SoftProblem, apply_candidates, candidate_brick, compile_soft, fresh_keys
 from ..solvers.compiled import compiled
-from ..solvers.problem import pad_soft
+from ..solvers.problem import plan_soft
 
 __all__ = [
     "RepairOptions",
@@ -391,12 +391,13 @@ def propose(layout: Layout, analysis: Analysis, opts: RepairOptions, budget: int
 # ranking by the gradient
 
 
-def _grad_fn(opts: LossOptions):
-    """``fn(w, *soft problem arrays) -> (loss, d loss / d w)``."""
+def _grad_fn(opts: LossOptions, fields: tuple):
+    """``fn(w, *soft problem arrays) -> (loss, d loss / d w)``; ``fields``: the
+    names of the :class:`SoftProblem` fields the arrays are (those not None)."""
     vg = jax.value_and_grad(lambda w, p: stability_loss(w, None, p, opts=opts))
 
     def fn(w, *arrays):
-        return vg(w, SoftProblem(*arrays))
+        return vg(w, SoftProblem(**dict(zip(fields, arrays))))
 
     return fn
 
@@ -408,12 +409,14 @@ def rank(layout: Layout, cands: Sequence[Candidate], opts: RepairOptions,
     a replacement's is that minus the replaced brick's. Returns (scores, loss)."""
     lo = loss_opts or LossOptions(temperature=opts.temperature, params=opts.params)
     soft = compile_soft(layout, cands, opts.params)
-    prob = pad_soft(soft.problem)  # on the ladder: similar layouts share one compiled gradient
+    # on the ladder (similar layouts share one compiled gradient), layered when cheaper
+    prob = plan_soft(soft.problem)
     w = np.zeros(prob.mass.shape[0])
     w[: soft.n] = soft.weights()
-    arrays = (w,) + tuple(prob)
+    fields = tuple(f for f in prob._fields if getattr(prob, f) is not None)
+    arrays = (w,) + tuple(getattr(prob, f) for f in fields)
     with one_blas_thread():
-        val, g = jax.device_get(compiled("repair-grad", _grad_fn(lo), lo, arrays)(*arrays))
+        val, g = jax.device_get(compiled("repair-grad", _grad_fn(lo, fields), (lo, fields), arrays)(*arrays))
         g = np.asarray(g)
     scores = g[soft.unit_index].copy()
     for k, c in enumerate(cands):

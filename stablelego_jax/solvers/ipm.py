@@ -35,9 +35,10 @@ import jax.numpy as jnp
 
 from ..model import NORMAL, SIDE, Params
 from ..runtime import x64
+from .blocks import block_cholesky, block_solve
 from .problem import Problem, Solution, make_solution, operators
 
-__all__ = ["IPMOptions", "solve", "block_cholesky", "block_solve"]
+__all__ = ["IPMOptions", "solve"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -66,46 +67,6 @@ class IPMOptions:
     step: float = 0.99
     init: float = 1e-2
     dtype: str = "float64"
-
-
-# ---------------------------------------------------------------- algebra
-
-
-def block_cholesky(D, E):
-    """Factor a block-tridiagonal SPD matrix: diagonal blocks D (L, k, k),
-    sub-diagonal blocks E (L, k, k) (E[l] = block (l+1, l); E[L-1] unused).
-    Returns (C, G): C[l] lower Cholesky factor of the l-th pivot block,
-    G[l] = C[l]^-1 E[l]'."""
-
-    def body(Gprev, inp):
-        Dl, El = inp
-        C = jnp.linalg.cholesky(Dl - Gprev.T @ Gprev)
-        G = jax.scipy.linalg.solve_triangular(C, El.T, lower=True)
-        return G, (C, G)
-
-    _, (C, G) = jax.lax.scan(body, jnp.zeros_like(D[0]), (D, E))
-    return C, G
-
-
-def block_solve(C, G, r):
-    """Solve M y = r (r: (L, k)) with the factors of :func:`block_cholesky`."""
-    tri = jax.scipy.linalg.solve_triangular
-
-    def fwd(yprev, inp):
-        Cl, Gprev, rl = inp
-        y = tri(Cl, rl - Gprev.T @ yprev, lower=True)
-        return y, y
-
-    Gshift = jnp.concatenate([jnp.zeros_like(G[:1]), G[:-1]])  # G[l-1] for layer l
-    _, y = jax.lax.scan(fwd, jnp.zeros_like(r[0]), (C, Gshift, r))
-
-    def bwd(xnext, inp):
-        Cl, Gl, yl = inp
-        x = tri(Cl, yl - Gl @ xnext, lower=True, trans=1)
-        return x, x
-
-    _, x = jax.lax.scan(bwd, jnp.zeros_like(r[0]), (C, G, y), reverse=True)
-    return x
 
 
 # ----------------------------------------------------------------- solver

@@ -29,6 +29,12 @@ __all__ = [
     "pad_to_bucket",
     "pad_soft",
     "stack_soft",
+    "layer_soft",
+    "soft_layer_plan",
+    "soft_plan",
+    "plan_soft",
+    "pair_chunks",
+    "CHUNK",
     "layer_plan",
     "layer_bucket",
     "to_layered",
@@ -142,11 +148,13 @@ def pad_to_bucket(model: ForceModel) -> ForceModel:
 
 
 def pad_soft(prob: SoftProblem, n_pad: int | None = None, m_pad: int | None = None,
-             p_pad: int | None = None) -> SoftProblem:
+             p_pad: int | None = None, c_pad: int | None = None) -> SoftProblem:
     """Pad to (n_pad bricks, m_pad columns, p_pad points per group); default
     the ladder (:func:`bucket_shape`), so similar sizes share a compiled
     solver. Padding bricks have no columns and no mass; padding
-    columns are inert (zero wrench, masked)."""
+    columns are inert (zero wrench, masked). A layered problem
+    (:func:`layer_soft`) stays layered, its padding bricks in no slot, its
+    column chunks padded to ``c_pad`` rows (default: the ladder)."""
     n, m = prob.mass.shape[0], prob.col_kind.shape[0]
     P = prob.group.shape[1]
     nb, mb, pb = bucket_shape(n, m, P)
@@ -161,6 +169,15 @@ def pad_soft(prob: SoftProblem, n_pad: int | None = None, m_pad: int | None = No
     grp = np.full((n_pad, p_pad), m_pad, np.int32)
     g = np.asarray(prob.group)
     grp[:n, :P] = np.where(g >= m, m_pad, g)
+    slot = chunk = None
+    if prob.slot is not None:
+        slot = np.concatenate([prob.slot, np.full(dn, prob.layers.size)]).astype(np.int32)
+    if prob.chunk is not None:
+        c = np.where(prob.chunk >= m, m_pad, prob.chunk)
+        c_pad = rung(len(c), 8) if c_pad is None else c_pad
+        if c_pad < len(c):
+            raise ValueError(f"cannot pad {len(c)} column chunks to {c_pad}")
+        chunk = np.concatenate([c, np.full((c_pad - len(c), c.shape[1]), m_pad)]).astype(np.int32)
     return SoftProblem(
         col_brick=cb,
         col_coef=np.concatenate([prob.col_coef, np.zeros((dm, 2, 6))]),
@@ -170,12 +187,102 @@ def pad_soft(prob: SoftProblem, n_pad: int | None = None, m_pad: int | None = No
         mass=np.concatenate([prob.mass, np.zeros(dn)]),
         brick_mask=np.concatenate([prob.brick_mask, np.zeros(dn, bool)]),
         unit=np.concatenate([prob.unit, np.arange(n, n_pad)]).astype(np.int32),
+        level=np.concatenate([prob.level, np.full(dn, -1)]).astype(np.int32),
+        slot=slot,
+        layers=prob.layers,
+        chunk=chunk,
     )
 
 
 def stack_soft(problems: Sequence[SoftProblem]) -> SoftProblem:
-    """Stack equally padded problems along a new leading (batch) axis."""
-    return SoftProblem(*[np.stack(a) for a in zip(*problems)])
+    """Stack equally padded (and equally layered) problems along a new
+    leading (batch) axis."""
+    return SoftProblem(*[None if a[0] is None else np.stack(a) for a in zip(*problems)])
+
+
+def soft_layer_plan(prob: SoftProblem) -> tuple[int, int]:
+    """(layers, largest bricks per layer) of a soft problem's real bricks."""
+    z = np.asarray(prob.level)[np.asarray(prob.brick_mask)]
+    if z.size == 0:
+        return 1, 1
+    counts = np.bincount(z - z.min())
+    return int(len(counts)), int(counts.max())
+
+
+def layer_soft(prob: SoftProblem, L: int | None = None, B: int | None = None) -> SoftProblem:
+    """The problem with its real bricks placed layer by layer (``slot``,
+    ``layers``) for the block-tridiagonal factorisation of
+    :mod:`.soft_ipm`: brick b goes to layer ``level[b] - min level``, slots
+    in brick order. Default (L, B): the ladder (:func:`layer_bucket`).
+    Brick and column indices do not change (weights, loads and results
+    keep their meaning)."""
+    L0, B0 = soft_layer_plan(prob)
+    Lb, Bb = layer_bucket(L0, B0)
+    L = Lb if L is None else L
+    B = Bb if B is None else B
+    if L0 > L or B0 > B:
+        raise ValueError(f"problem needs {L0} x {B0} layer slots, got {L} x {B}")
+    real = np.asarray(prob.brick_mask)
+    z = np.asarray(prob.level)
+    idx = np.nonzero(real)[0]
+    zr = z[idx] - (z[idx].min() if len(idx) else 0)
+    order = np.argsort(zr, kind="stable")
+    counts = np.bincount(zr, minlength=1)
+    rank = np.empty(len(idx), np.int64)
+    rank[order] = np.arange(len(idx)) - np.repeat(np.cumsum(counts) - counts, counts)
+    slot = np.full(len(z), L * B, np.int32)
+    slot[idx] = zr * B + rank
+    return prob._replace(slot=slot, layers=np.zeros((L, B), np.int8), chunk=pair_chunks(prob))
+
+
+#: Columns per row of :func:`pair_chunks`.
+CHUNK = 8
+
+
+def pair_chunks(prob: SoftProblem, width: int = CHUNK) -> np.ndarray:
+    """(C, width) int32: the real columns grouped by the pair of bricks they
+    join, ``width`` per row at most (a pair with more columns takes several
+    rows), ``m`` where a row has fewer."""
+    m = prob.col_kind.shape[0]
+    cols = np.nonzero(np.asarray(prob.col_mask))[0]
+    if len(cols) == 0:
+        return np.full((1, width), m, np.int32)
+    cb = np.asarray(prob.col_brick, np.int64)[cols]
+    order = np.lexsort((cb[:, 1], cb[:, 0]))
+    cols, cb = cols[order], cb[order]
+    new_pair = np.concatenate([[True], (cb[1:] != cb[:-1]).any(axis=1)])
+    pair = np.cumsum(new_pair) - 1
+    start = np.nonzero(new_pair)[0]
+    k = np.arange(len(cols)) - start[pair]  # rank of the column inside its pair
+    per = np.bincount(pair)
+    rows_per = -(-per // width)
+    row0 = np.concatenate([[0], np.cumsum(rows_per)[:-1]])
+    row = row0[pair] + k // width
+    out = np.full((int(rows_per.sum()), width), m, np.int32)
+    out[row, k % width] = cols
+    return out
+
+
+def soft_plan(prob: SoftProblem) -> tuple:
+    """("dense",) or ("layered", L, B) for a soft problem, whichever
+    factorises more cheaply (the rule of :func:`solve_plan`: the layered
+    factorisation costs ~3 L (6 B)^3 (block LU: about twice a block
+    Cholesky), the dense one (7 n)^3 / 3); at most ``DENSE_MAX`` bricks
+    stay dense."""
+    n = int(np.asarray(prob.brick_mask).sum())
+    Lp, Bp = layer_bucket(*soft_layer_plan(prob))
+    if n > DENSE_MAX and Lp > 1 and 6 * Lp * Bp ** 3 < (7 / 6) ** 3 * n ** 3 / 3:
+        return ("layered", Lp, Bp)
+    return ("dense",)
+
+
+def plan_soft(prob: SoftProblem) -> SoftProblem:
+    """The problem padded to the ladder (:func:`pad_soft`), layered
+    (:func:`layer_soft`) when :func:`soft_plan` says that is cheaper."""
+    key = soft_plan(prob)
+    if key[0] == "layered":
+        prob = layer_soft(prob, key[1], key[2])
+    return pad_soft(prob)
 
 
 # ---------------------------------------------------------------- layering

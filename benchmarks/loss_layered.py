@@ -1,0 +1,185 @@
+"""Fidelity of the layered factorisation of the soft interior point (issue 18)
+against the dense one, on the layouts of ``benchmarks/loss_gradients.py``.
+
+Usage: python benchmarks/loss_layered.py [--n-fd 12] [--n-verdict 60]
+       [--out benchmarks/results/loss_layered.json]
+
+* Verdict layouts (the paper's 8 structures + ``--n-verdict`` generated,
+  at most 60 bricks): loss at the default temperature and at 1e-5,
+  per-brick scores and the Eq. 10 verdict and failing set from the
+  layered solve against the dense solve of the same padded problem, and
+  the layered failing set against HiGHS.
+* Gradient layouts (8 + ``--n-fd``), the random interior weights and loads
+  of ``loss_gradients.py`` (same seed): gradients of both factorisations
+  (largest absolute difference), and the layered gradient against central
+  differences (steps 1e-4 and 1e-5, the better; components below 1e-3 of
+  the largest or below 1e-8 compared in absolute terms), 6 components of
+  weights and 6 of loads per layout.
+
+Every problem is padded to one shape; layered, to the ladder rung of its
+own (layers, bricks per layer) (one compile per rung: a common rung for
+all would make the small ones pay for the largest).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import time
+
+sys.path.insert(0, os.path.dirname(__file__))
+
+import loss_gradients as lg  # noqa: E402  (sets up jax, x64, paths)
+import jax  # noqa: E402
+import numpy as np  # noqa: E402
+
+from stablelego_jax.analysis import analyze_layout  # noqa: E402
+from stablelego_jax.files import atomic_write_text  # noqa: E402
+from stablelego_jax.formats.reader import load_layout  # noqa: E402
+from stablelego_jax.generate.procedural import random_family_layout  # noqa: E402
+from stablelego_jax.loss import soft_report, stability_loss  # noqa: E402
+from stablelego_jax.soft import soft_problem  # noqa: E402
+from stablelego_jax.solvers.problem import layer_bucket, layer_soft, pad_soft, soft_layer_plan  # noqa: E402
+
+SHAPE = lg.SHAPE
+OPTS = lg.OPTS
+REPORT = jax.jit(lambda w, loads, prob, tau: soft_report(w, loads, prob, tau, opts=OPTS))
+VG = jax.jit(jax.value_and_grad(lambda w, loads, prob: stability_loss(w, loads, prob, opts=OPTS), argnums=(0, 1)))
+
+
+def LOSS(w, loads, prob):
+    return VG(w, loads, prob)[0]
+
+
+def GRAD(w, loads, prob):
+    return VG(w, loads, prob)[1]
+
+
+def problems(lay):
+    """(dense, layered) padded problems of ``lay``; layered on the ladder
+    rung of its own (layers, bricks per layer)."""
+    p = soft_problem(lay)
+    return pad_soft(p, *SHAPE), pad_soft(layer_soft(p), *SHAPE)
+
+
+def verdict_case(name, lay):
+    dense, layered = problems(lay)
+    w = np.zeros(SHAPE[0])
+    w[: lay.n] = 1.0
+    z = np.zeros(SHAPE[0])
+    out = {"name": name, "n_bricks": lay.n}
+    for tau in (OPTS.temperature, 1e-5):
+        rd, rl = REPORT(w, z, dense, tau), REPORT(w, z, layered, tau)
+        ld, ll = float(np.sum(rd.brick_loss)), float(np.sum(rl.brick_loss))
+        out[f"loss_rel_diff_tau{tau:g}"] = abs(ll - ld) / max(abs(ld), 1e-300)
+    sd, sl = np.asarray(rd.scores)[: lay.n], np.asarray(rl.scores)[: lay.n]
+    ex = analyze_layout(lay, solver="exact")
+    failing = np.array([ex.scores[k] >= 1.0 for k in lay.keys])
+    out.update(converged=bool(rl.converged), max_score_diff=float(np.abs(sd - sl).max()),
+               verdict_same=bool((sd < 1).all() == (sl < 1).all()),
+               failing_same_as_dense=bool(((sd >= 1) == (sl >= 1)).all()),
+               failing_same_as_exact=bool(((sl >= 1) == failing).all()))
+    return out
+
+
+def fd_case(name, lay, rng):
+    dense, layered = problems(lay)
+    n = lay.n
+    w = np.zeros(SHAPE[0])
+    w[:n] = 1.0
+    soft_idx = rng.choice(n, size=max(1, n // 3), replace=False)
+    w[soft_idx] = rng.uniform(0.3, 0.9, size=len(soft_idx))
+    loads = np.zeros(SHAPE[0])
+    li = rng.choice(n, size=max(1, n // 3), replace=False)
+    loads[li] = rng.uniform(0.0, 0.05, size=len(li))
+    gd = [np.asarray(v) for v in GRAD(w, loads, dense)]
+    gl_ = [np.asarray(v) for v in GRAD(w, loads, layered)]
+    ld, ll = float(LOSS(w, loads, dense)), float(LOSS(w, loads, layered))
+    out = {"name": name, "n_bricks": n, "loss_rel_diff": abs(ll - ld) / max(abs(ld), 1e-300),
+           "grad_max_abs_diff": float(max(np.abs(a - b).max() for a, b in zip(gd, gl_)))}
+    worst = 0.0
+    for what, x, g, pool in (("weights", w, gl_[0], soft_idx), ("loads", loads, gl_[1], np.arange(n))):
+        idx = rng.choice(pool, size=min(6, len(pool)), replace=False)
+
+        def fd(i, h):
+            xp, xm = x.copy(), x.copy()
+            xp[i] += h
+            xm[i] -= h
+            ap = (xp, loads) if what == "weights" else (w, xp)
+            am = (xm, loads) if what == "weights" else (w, xm)
+            return (float(LOSS(*ap, layered)) - float(LOSS(*am, layered))) / (2 * h)
+
+        fds = np.array([[fd(i, h) for i in idx] for h in lg.STEPS])
+        gi = g[idx]
+        scale = max(np.abs(fds).max(), 1e-300)
+        big = np.abs(fds[0]) > max(1e-3 * scale, lg.FLOOR)
+        rel = (np.abs(gi[None, :] - fds) / np.maximum(np.abs(fds), 1e-300)).min(axis=0)
+        if big.any():
+            worst = max(worst, float(rel[big].max()))
+    out["fd_max_rel_err"] = worst
+    return out
+
+
+def control_case(name, lay):
+    """The dense solver against itself with the bricks numbered in reverse:
+    how far rounding alone moves the loss and its gradient."""
+    from stablelego_jax.layout import make_layout
+
+    n = lay.n
+    perm = np.arange(n)[::-1]
+    rev = make_layout([lay.keys[i] for i in perm], lay.pos[perm], lay.size[perm], lay.mass[perm])
+    w = np.zeros(SHAPE[0])
+    w[:n] = 1.0
+    z = np.zeros(SHAPE[0])
+    a = VG(w, z, pad_soft(soft_problem(lay), *SHAPE))
+    b = VG(w, z, pad_soft(soft_problem(rev), *SHAPE))
+    ga, gb = np.asarray(a[1][0])[:n], np.asarray(b[1][0])[:n][np.argsort(perm)]
+    return {"name": name, "loss_rel_diff": abs(float(a[0]) - float(b[0])) / max(abs(float(a[0])), 1e-300),
+            "grad_max_abs_diff": float(np.abs(ga - gb).max()), "grad_scale": float(np.abs(ga).max())}
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--n-fd", type=int, default=12)
+    ap.add_argument("--n-verdict", type=int, default=60)
+    ap.add_argument("--out", default=os.path.join(os.path.dirname(__file__), "results", "loss_layered.json"))
+    ap.add_argument("--control", action="store_true",
+                    help="only the control: dense vs dense with reversed brick numbering on the 8 structures")
+    a = ap.parse_args()
+    t0 = time.time()
+    if a.control:
+        rows = [control_case(f, load_layout(os.path.join(lg.REF, f))) for f in sorted(os.listdir(lg.REF))
+                if f.endswith(".json")]
+        print(json.dumps(rows, indent=1))
+        return
+    refs = [(f, load_layout(os.path.join(lg.REF, f))) for f in sorted(os.listdir(lg.REF)) if f.endswith(".json")]
+    gen, seed = [], 0
+    while len(gen) < max(a.n_fd, a.n_verdict):
+        fam, lay = random_family_layout(seed)
+        seed += 1
+        if lay.n <= 60 and lg.fits(lay):
+            gen.append((f"{fam}/{seed - 1}", lay))
+    rng = np.random.default_rng(0)  # the draws of loss_gradients.py
+    fd = [fd_case(name, lay, rng) for name, lay in refs + gen[: a.n_fd]]
+    ver = [verdict_case(name, lay) for name, lay in refs + gen[: a.n_verdict]]
+    shapes = {layer_bucket(*soft_layer_plan(soft_problem(lay))) for _, lay in refs + gen}
+    summary = {
+        "shape": list(SHAPE), "layered_shapes": len(shapes),
+        "verdict_layouts": len(ver), "converged": sum(r["converged"] for r in ver),
+        "max_loss_rel_diff": max(max(r[k] for k in r if k.startswith("loss_rel_diff")) for r in ver + fd),
+        "max_score_diff": max(r["max_score_diff"] for r in ver),
+        "verdict_same": sum(r["verdict_same"] for r in ver),
+        "failing_same_as_dense": sum(r["failing_same_as_dense"] for r in ver),
+        "failing_same_as_exact": sum(r["failing_same_as_exact"] for r in ver),
+        "fd_layouts": len(fd), "grad_max_abs_diff": max(r["grad_max_abs_diff"] for r in fd),
+        "fd_max_rel_err": max(r["fd_max_rel_err"] for r in fd),
+        "fd_layouts_under_5pct": sum(r["fd_max_rel_err"] < 0.05 for r in fd),
+        "time_s": round(time.time() - t0, 1),
+    }
+    atomic_write_text(a.out, json.dumps({"summary": summary, "fd": fd, "verdict": ver}, indent=1) + "\n")
+    print(json.dumps(summary, indent=1))
+
+
+if __name__ == "__main__":
+    main()
