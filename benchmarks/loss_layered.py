@@ -16,6 +16,10 @@ Usage: python benchmarks/loss_layered.py [--n-fd 12] [--n-verdict 60]
   the largest or below 1e-8 compared in absolute terms), 6 components of
   weights and 6 of loads per layout.
 
+``--control``: only the dense solver against itself with the bricks
+numbered in reverse, on the 8 structures (how far rounding alone moves the
+loss and gradient), written next to ``--out`` as ``*_control.json``.
+
 Every problem is padded to one shape; layered, to the ladder rung of its
 own (layers, bricks per layer) (one compile per rung: a common rung for
 all would make the small ones pay for the largest).
@@ -151,7 +155,9 @@ def main():
     if a.control:
         rows = [control_case(f, load_layout(os.path.join(lg.REF, f))) for f in sorted(os.listdir(lg.REF))
                 if f.endswith(".json")]
-        print(json.dumps(rows, indent=1))
+        text = json.dumps(rows, indent=1)
+        print(text)
+        atomic_write_text(a.out.replace(".json", "_control.json"), text + "\n")
         return
     refs = [(f, load_layout(os.path.join(lg.REF, f))) for f in sorted(os.listdir(lg.REF)) if f.endswith(".json")]
     gen, seed = [], 0

@@ -19,8 +19,8 @@ layer, then round robin), up to ``--placements`` in all; random extra loads
 Measured: ``compile_s`` (jit of loss + gradient, lowering and compiling),
 ``loss_grad_s`` (one loss + gradient after compile, best of ``--repeat``),
 ``peak_mb`` (the process's peak resident memory, compile included),
-``fd_max_rel_err``: central differences (steps 1e-4 and 1e-5, the better
-of the two) on ``--fd`` sampled weights of candidates and 2 loads;
+``fd_max_rel_err``: central differences (step 1e-4, and 1e-5 when 1e-4 is
+more than 5% off; the better of the two) on ``--fd`` sampled weights of candidates and 2 loads;
 components below 1e-3 of the largest gradient component are compared in
 absolute terms. Prints one JSON object (``--json``) or a line.
 """
@@ -47,11 +47,12 @@ from stablelego_jax.generate.voxels import merge_voxels  # noqa: E402
 from stablelego_jax.loss import LossOptions, soft_report  # noqa: E402
 from stablelego_jax.soft import compile_placements  # noqa: E402
 from stablelego_jax.solvers.problem import (  # noqa: E402
-    bucket_shape, layer_bucket, layer_soft, pad_soft, soft_layer_plan, stack_soft)
+    bucket_shape, layer_bucket, layer_soft, pad_soft, rung, soft_layer_plan, stack_soft)
 from stablelego_jax.train.net import MASS, TYPES, valid_placements  # noqa: E402
 
 MESHES = os.path.join(os.path.dirname(__file__), "..", "..", "shared", "meshes")
 OPTS = LossOptions()
+FLOOR = 1e-4  # losses below: a layout that stands (see batch())
 
 
 def soft_instance(mesh: str, grid: int, up: str, placements: int, seed: int):
@@ -88,9 +89,12 @@ def soft_instance(mesh: str, grid: int, up: str, placements: int, seed: int):
     return prob, w, loads, nl
 
 
-def _fd(f, w, loads, idx, which, steps=(1e-4, 1e-5)):
+def _fd(f, w, loads, idx, which, g, steps=(1e-4, 1e-5)):
+    """Central differences at each step until one is within 5% of ``g``."""
     out = []
     for h in steps:
+        if out and abs(g - out[-1]) <= 0.05 * abs(out[-1]):
+            break
         wp, wm, lp, lm = w.copy(), w.copy(), loads.copy(), loads.copy()
         if which == "w":
             wp[idx] += h
@@ -158,7 +162,7 @@ def main(argv=None) -> int:
         picks += [("l", int(i)) for i in rng.choice(np.nonzero(loads > 0)[0], size=2, replace=False)]
         for which, i in picks:
             g = gw[i] if which == "w" else gl[i]
-            fds = _fd(f, W, LD, i, which)
+            fds = _fd(f, W, LD, i, which, g)
             err = min(abs(g - d) / max(abs(d), 1e-3 * scale) for d in fds)
             errs.append(err)
     out = dict(
@@ -182,14 +186,19 @@ def main(argv=None) -> int:
 def batch(a) -> int:
     """``--batch K``: one ``vmap``-ed loss + gradient over K soft problems
     padded to one shape against K calls of the unbatched function (both
-    compiled once, timed after compile)."""
+    compiled once, timed after compile). Loss agreement: relative on the
+    problems whose loss is above ``FLOOR`` (unstable layouts), absolute on
+    the rest (a layout that stands has a loss at the barrier's floor, the
+    smoothed equilibrium residual at mu, ~1e-7..1e-5, which the stopping
+    rule pins only to its tolerance)."""
     insts = [soft_instance(a.mesh, a.grid, a.up, a.placements, a.seed + i) for i in range(a.batch)]
     plans = [soft_layer_plan(p) for p, *_ in insts]
     LB = (max(p[0] for p in plans), max(p[1] for p in plans))
     probs = [layer_soft(p, *layer_bucket(*LB)) if a.solver == "layered" else p for p, *_ in insts]
     shape = [max(v) for v in zip(*(bucket_shape(p.mass.shape[0], p.col_kind.shape[0], p.group.shape[1])
                                    for p in probs))]
-    probs = [pad_soft(p, *shape) for p in probs]
+    c_pad = max((rung(len(p.chunk), 8) for p in probs if p.chunk is not None), default=None)
+    probs = [pad_soft(p, *shape, c_pad=c_pad) for p in probs]
     W = np.zeros((a.batch, shape[0]))
     LD = np.zeros((a.batch, shape[0]))
     for i, (p, w, ld, _) in enumerate(insts):
@@ -198,9 +207,10 @@ def batch(a) -> int:
     stacked = stack_soft(probs)
 
     def loss(wt, ld, p):
-        return soft_report(wt, ld, p, opts=OPTS).brick_loss.sum()
+        r = soft_report(wt, ld, p, opts=OPTS)
+        return r.brick_loss.sum(), r.converged
 
-    vg = jax.value_and_grad(loss, argnums=(0, 1))
+    vg = jax.value_and_grad(loss, argnums=(0, 1), has_aux=True)
     t0 = time.perf_counter()
     one = jax.jit(vg).lower(W[0], LD[0], probs[0]).compile()
     many = jax.jit(jax.vmap(vg)).lower(W, LD, stacked).compile()
@@ -209,13 +219,25 @@ def batch(a) -> int:
     singles = [jax.block_until_ready(one(W[i], LD[i], probs[i])) for i in range(a.batch)]
     one_s = time.perf_counter() - t0
     t0 = time.perf_counter()
-    lv, (gw, _) = jax.block_until_ready(many(W, LD, stacked))
+    (lv, conv), (gw, _) = jax.block_until_ready(many(W, LD, stacked))
     many_s = time.perf_counter() - t0
-    same = max(abs(float(lv[i]) - float(singles[i][0])) / max(abs(float(singles[i][0])), 1e-300) for i in range(a.batch))
+    ref = [float(s_[0][0]) for s_ in singles]
+    diff = [abs(float(lv[i]) - ref[i]) for i in range(a.batch)]
+    # a layout that stands has a loss at the barrier's floor (the smoothed
+    # residual at mu, below ``FLOOR``): compared in absolute terms
+    big = [i for i in range(a.batch) if abs(ref[i]) > FLOOR]
+    gdiff = [float(np.abs(np.asarray(gw[i]) - np.asarray(singles[i][1][0])).max())
+             / max(float(np.abs(np.asarray(singles[i][1][0])).max()), 1e-300) for i in range(a.batch)]
     out = dict(mesh=os.path.basename(a.mesh), solver=a.solver, batch=a.batch, placements=a.placements,
                padded=[int(v) for v in shape] + ([list(map(int, probs[0].layers.shape))] if a.solver == "layered" else []),
                one_at_a_time_s_per_problem=round(one_s / a.batch, 3), vmap_s_per_problem=round(many_s / a.batch, 3),
-               speedup=round(one_s / many_s, 2), max_loss_rel_diff=same, compile_s=round(compile_s, 2),
+               speedup=round(one_s / many_s, 2), above_floor=len(big),
+               max_loss_rel_diff=max((diff[i] / abs(ref[i]) for i in big), default=None),
+               max_grad_rel_diff=max((gdiff[i] for i in big), default=None),
+               floor_max_loss_abs_diff=max((diff[i] for i in range(a.batch) if i not in big), default=None),
+               floor_max_grad_rel_diff=max((gdiff[i] for i in range(a.batch) if i not in big), default=None),
+               converged_vmap=int(np.sum(conv)), converged_single=int(sum(bool(s[0][1]) for s in singles)),
+               compile_s=round(compile_s, 2),
                peak_mb=round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0, 1))
     print(json.dumps(out) if a.json else " ".join(f"{k}={v}" for k, v in out.items()))
     return 0
