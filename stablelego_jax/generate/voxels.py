@@ -251,56 +251,70 @@ def floating_bricks(layout: Layout) -> np.ndarray:
     return _floating(layout.occupancy(), layout.n)
 
 
-def _cover_region(region: np.ndarray, must: np.ndarray, anchor: np.ndarray, types) -> list | None:
-    """Bricks (x, y, sx, sy) covering the cells of the 2-D ``region`` exactly.
+def _cover_region(region: np.ndarray, must: np.ndarray, anchor: np.ndarray, types,
+                  budget: int = 4000) -> list | None:
+    """Bricks (x, y, sx, sy) covering the cells of the 2-D ``region`` exactly,
+    every ``must`` cell in a brick that also covers an ``anchor`` cell.
 
-    First, while a cell of ``must`` is uncovered, the window (any type and
-    orientation, inside the free region) that covers the most ``must`` cells
-    and at least one ``anchor`` cell (largest first on ties); then the rest
-    largest first. None if some ``must`` cell cannot be anchored."""
-    free = region.copy()
-    X, Y = free.shape
-    out = []
+    A depth-first search: the first uncovered ``must`` cell (scan order) is
+    covered by a window (any type and orientation, inside the free region)
+    that holds it and at least one free ``anchor`` cell, tried in the order
+    most ``must`` cells, then largest; on a dead end the next window
+    (backtracking, at most ``budget`` windows tried). Once every ``must``
+    cell is covered, the rest is filled largest first. None if no cover
+    was found."""
+    X, Y = region.shape
+    shapes = []
+    for a, b in types:
+        for sx, sy in ((a, b), (b, a)) if a != b else ((a, b),):
+            if sx <= X and sy <= Y:
+                shapes.append((sx, sy))
+    tried = [0]
 
-    def windows():
-        for a, b in types:
-            for sx, sy in ((a, b), (b, a)) if a != b else ((a, b),):
-                if sx > X or sy > Y:
-                    continue
+    def fill_rest(free, out):
+        for sx, sy in shapes:
+            while True:
                 ok = _wsum(free, sx, sy) == sx * sy
-                yield sx, sy, ok
+                if not ok.any():
+                    break
+                x, y = (int(v) for v in np.unravel_index(int(np.argmax(ok)), ok.shape))
+                free[x:x + sx, y:y + sy] = False
+                out.append((x, y, sx, sy))
+        return out if not free.any() else None
 
-    while (must & free).any():
-        best = None
-        for sx, sy, ok in windows():
-            n_must = _wsum(must & free, sx, sy)
-            n_anc = _wsum(anchor & free, sx, sy)
-            key = np.where(ok & (n_must > 0) & (n_anc > 0), n_must * 1000 + sx * sy, -1)
-            i = int(np.argmax(key))
-            if key.flat[i] > 0 and (best is None or key.flat[i] > best[0]):
-                best = (int(key.flat[i]), *np.unravel_index(i, key.shape), sx, sy)
-        if best is None:
-            return None
-        _, x, y, sx, sy = best
-        free[x:x + sx, y:y + sy] = False
-        out.append((int(x), int(y), sx, sy))
-    for sx, sy, _ in list(windows()):
-        while True:
-            ok = _wsum(free, sx, sy) == sx * sy
-            if not ok.any():
-                break
-            x, y = (int(v) for v in np.unravel_index(int(np.argmax(ok)), ok.shape))
-            free[x:x + sx, y:y + sy] = False
-            out.append((x, y, sx, sy))
-    return out if not free.any() else None
+    def search(free, out):
+        left = must & free
+        if not left.any():
+            return fill_rest(free.copy(), list(out))
+        cx, cy = (int(v) for v in np.argwhere(left)[0])
+        options = []
+        for sx, sy in shapes:
+            for x in range(max(cx - sx + 1, 0), min(cx, X - sx) + 1):
+                for y in range(max(cy - sy + 1, 0), min(cy, Y - sy) + 1):
+                    win = (slice(x, x + sx), slice(y, y + sy))
+                    if free[win].all() and anchor[win].any():
+                        options.append((-int(left[win].sum()), -sx * sy, x, y, sx, sy))
+        for _, _, x, y, sx, sy in sorted(options):
+            tried[0] += 1
+            if tried[0] > budget:
+                return None
+            nxt = free.copy()
+            nxt[x:x + sx, y:y + sy] = False
+            got = search(nxt, out + [(x, y, sx, sy)])
+            if got is not None:
+                return got
+        return None
+
+    return search(region.copy(), [])
 
 
 def _repair_floating(vox, ids, pos, size, types, max_rounds: int = 4):
     """Re-merge the neighbourhood of every floating brick so that it reaches
     a cell held by a grounded brick (the cell under or over it belongs to
     one). The floating brick and its same-layer neighbours are re-covered
-    (:func:`_cover_region`); a change is kept only if the number of
-    floating bricks drops. Deterministic."""
+    (:func:`_cover_region`: the floating cells anchored; failing that, every
+    cell that holds nothing itself anchored too); a change is kept only if
+    the number of floating bricks drops. Deterministic."""
     pos, size = list(pos), list(size)
     ids = ids.copy()
     X, Y, Z = vox.shape
@@ -336,21 +350,30 @@ def _repair_floating(vox, ids, pos, size, types, max_rounds: int = 4):
                 if 0 <= z + dz < Z:
                     nb = ids[:, :, z + dz]
                     held |= (nb >= 0) & ~cur[np.maximum(nb, 0)]
-            must = region & np.isin(layer, [g for g in group if cur[g]])
-            plan = _cover_region(region, must, region & held, types)
-            if plan is None:
+            # first the floating bricks' cells must reach a held cell; if that
+            # plan leaves as many floating (a new brick on no held cell), every
+            # cell of the region that holds nothing itself must
+            flo = region & np.isin(layer, [g for g in group if cur[g]])
+            found = None
+            for must in (flo, flo | (region & ~held)):
+                plan = _cover_region(region, must, region & held, types)
+                if plan is None:
+                    continue
+                slots = list(group) + list(range(len(pos), len(pos) + max(len(plan) - len(group), 0)))
+                trial = ids.copy()
+                tl = trial[:, :, z]
+                tl[region] = -1
+                t_alive = np.concatenate([alive, np.ones(len(slots) - len(group), bool)])
+                for k in group[len(plan):]:
+                    t_alive[k] = False
+                for (bx, by, sx, sy), k in zip(plan, slots):
+                    tl[bx:bx + sx, by:by + sy] = k
+                if n_floating(trial, t_alive) < int(cur.sum()):
+                    found = plan, slots, trial
+                    break
+            if found is None:
                 continue
-            slots = list(group) + list(range(len(pos), len(pos) + max(len(plan) - len(group), 0)))
-            trial = ids.copy()
-            tl = trial[:, :, z]
-            tl[region] = -1
-            t_alive = np.concatenate([alive, np.ones(len(slots) - len(group), bool)])
-            for k in group[len(plan):]:
-                t_alive[k] = False
-            for (bx, by, sx, sy), k in zip(plan, slots):
-                tl[bx:bx + sx, by:by + sy] = k
-            if n_floating(trial, t_alive) >= int(cur.sum()):
-                continue
+            plan, slots, trial = found
             pos.extend([None] * (len(slots) - len(group)))
             size.extend([None] * (len(slots) - len(group)))
             for k in group:
