@@ -20,7 +20,8 @@ Measured: ``compile_s`` (jit of loss + gradient, lowering and compiling),
 ``loss_grad_s`` (one loss + gradient after compile, best of ``--repeat``),
 ``peak_mb`` (the process's peak resident memory, compile included),
 ``fd_max_rel_err``: central differences (step 1e-4, and 1e-5 when 1e-4 is
-more than 5% off; the better of the two) on ``--fd`` sampled weights of candidates and 2 loads;
+more than 5% off; the better of the two) on ``--fd`` random candidate weights, the ``--fd`` candidate weights with
+the largest gradients, 2 random loads and the load with the largest gradient;
 components below 1e-3 of the largest gradient component are compared in
 absolute terms. Prints one JSON object (``--json``) or a line.
 """
@@ -160,6 +161,11 @@ def main(argv=None) -> int:
         scale = max(np.abs(gw[:n]).max(), np.abs(gl[:n]).max(), 1e-12)
         picks = [("w", int(i)) for i in rng.choice(np.arange(nl, n), size=min(a.fd, n - nl), replace=False)]
         picks += [("l", int(i)) for i in rng.choice(np.nonzero(loads > 0)[0], size=2, replace=False)]
+        # random candidates often do not touch the loss (gradient ~0): also
+        # the candidates and the load with the largest gradients
+        top = nl + np.argsort(-np.abs(gw[nl:n]))
+        picks += [("w", int(i)) for i in top if ("w", int(i)) not in picks][: a.fd]
+        picks += [("l", int(np.argmax(np.abs(gl[:n]))))]
         for which, i in picks:
             g = gw[i] if which == "w" else gl[i]
             fds = _fd(f, W, LD, i, which, g)
@@ -174,6 +180,8 @@ def main(argv=None) -> int:
         loss=float(loss), converged=bool(conv),
         loss_grad_s=round(min(times), 3), compile_s=round(compile_s, 2), build_s=round(build_s, 2),
         fd_max_rel_err=(float(max(errs)) if errs else None), fd_checked=len(errs),
+        fd_checked_grads=[float(gw[i] if w_ == 'w' else gl[i]) for w_, i in picks] if errs else [],
+        fd_errs=[float(e) for e in errs],
         peak_mb=round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0, 1),
     )
     if a.json:
