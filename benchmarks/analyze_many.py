@@ -15,9 +15,9 @@ in one call); while it runs, its resident memory (``VmRSS``) and memory
 mappings (lines of ``/proc/PID/maps``: the resource whose exhaustion once
 crashed a long run) are sampled every 0.2 s and tied to the number of
 output lines so far. Reported per solver: exit code, output lines, files
-without a line, lines that are errors, wall time, and RSS / mappings after
-10%, 25%, 50%, 75% and 100% of the files; "flat" compares the last
-quarter's growth with the second quarter's level.
+without a line, lines that are errors, wall time, peak RSS and mappings,
+RSS / mappings after 10%, 25%, 50%, 75% and 100% of the files, and the
+RSS growth over the last quarter and over the second half of the run.
 """
 from __future__ import annotations
 
@@ -85,7 +85,7 @@ def run_one(files: list[str], solver: str, method: str) -> dict:
     threads = [threading.Thread(target=read_out, daemon=True), threading.Thread(target=read_err, daemon=True)]
     for t in threads:
         t.start()
-    last = -1.0
+    last = -1
     while proc.poll() is None:
         rss, maps = _status(proc.pid)
         if maps >= 0:

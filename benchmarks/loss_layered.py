@@ -157,7 +157,7 @@ def main():
                 if f.endswith(".json")]
         text = json.dumps(rows, indent=1)
         print(text)
-        atomic_write_text(a.out.replace(".json", "_control.json"), text + "\n")
+        atomic_write_text(os.path.splitext(a.out)[0] + "_control.json", text + "\n")
         return
     refs = [(f, load_layout(os.path.join(lg.REF, f))) for f in sorted(os.listdir(lg.REF)) if f.endswith(".json")]
     gen, seed = [], 0

@@ -20,8 +20,9 @@ Measured: ``compile_s`` (jit of loss + gradient, lowering and compiling),
 ``loss_grad_s`` (one loss + gradient after compile, best of ``--repeat``),
 ``peak_mb`` (the process's peak resident memory, compile included),
 ``fd_max_rel_err``: central differences (step 1e-4, and 1e-5 when 1e-4 is
-more than 5% off; the better of the two) on ``--fd`` random candidate weights, the ``--fd`` candidate weights with
-the largest gradients, 2 random loads and the load with the largest gradient;
+more than 5% off; the better of the two) on ``--fd`` random candidate
+weights, the ``--fd`` candidate weights with the largest gradients, 2
+random loads and the load with the largest gradient;
 components below 1e-3 of the largest gradient component are compared in
 absolute terms. Prints one JSON object (``--json``) or a line.
 """
@@ -90,6 +91,12 @@ def soft_instance(mesh: str, grid: int, up: str, placements: int, seed: int):
     return prob, w, loads, nl
 
 
+def loss_aux(wt, ld, p):
+    """(summed brick loss, converged) of one padded soft problem."""
+    r = soft_report(wt, ld, p, opts=OPTS)
+    return r.brick_loss.sum(), r.converged
+
+
 def _fd(f, w, loads, idx, which, g, steps=(1e-4, 1e-5)):
     """Central differences at each step until one is within 5% of ``g``."""
     out = []
@@ -137,10 +144,6 @@ def main(argv=None) -> int:
     W[:n] = w
     LD = np.zeros(n_pad)
     LD[:n] = loads
-
-    def loss_aux(wt, ld, p):
-        r = soft_report(wt, ld, p, opts=OPTS)
-        return r.brick_loss.sum(), r.converged
 
     t0 = time.perf_counter()
     vg = jax.jit(jax.value_and_grad(loss_aux, argnums=(0, 1), has_aux=True)).lower(W, LD, prob).compile()
@@ -214,11 +217,7 @@ def batch(a) -> int:
         LD[i, : len(ld)] = ld
     stacked = stack_soft(probs)
 
-    def loss(wt, ld, p):
-        r = soft_report(wt, ld, p, opts=OPTS)
-        return r.brick_loss.sum(), r.converged
-
-    vg = jax.value_and_grad(loss, argnums=(0, 1), has_aux=True)
+    vg = jax.value_and_grad(loss_aux, argnums=(0, 1), has_aux=True)
     t0 = time.perf_counter()
     one = jax.jit(vg).lower(W[0], LD[0], probs[0]).compile()
     many = jax.jit(jax.vmap(vg)).lower(W, LD, stacked).compile()

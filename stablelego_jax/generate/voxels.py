@@ -285,7 +285,7 @@ def _cover_region(region: np.ndarray, must: np.ndarray, anchor: np.ndarray, type
     def search(free, out):
         left = must & free
         if not left.any():
-            return fill_rest(free.copy(), list(out))
+            return fill_rest(free, out)  # both are this call's own (copied by the caller)
         cx, cy = (int(v) for v in np.argwhere(left)[0])
         options = []
         for sx, sy in shapes:
@@ -354,8 +354,9 @@ def _repair_floating(vox, ids, pos, size, types, max_rounds: int = 4):
             # plan leaves as many floating (a new brick on no held cell), every
             # cell of the region that holds nothing itself must
             flo = region & np.isin(layer, [g for g in group if cur[g]])
+            wider = flo | (region & ~held)
             found = None
-            for must in (flo, flo | (region & ~held)):
+            for must in (flo, wider) if (wider != flo).any() else (flo,):
                 plan = _cover_region(region, must, region & held, types)
                 if plan is None:
                     continue
