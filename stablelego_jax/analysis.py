@@ -10,7 +10,7 @@ from .blas import one_blas_thread
 from .formats.reader import load_layout
 from .layout import Layout, LayoutError, Library
 from .model import ForceModel, Params, compile_layout
-from .score import brick_scores, residual
+from .score import brick_scores, floating_bricks, residual
 from .solvers.baselines import METHODS, residual_split, solve_baseline
 from .solvers.exact import solve_exact
 
@@ -161,8 +161,9 @@ def resolve_unconverged(a: "Analysis", opts=None, params: Params | None = None) 
 
 def make_analysis(layout, model, f, solver, converged, t0, **diag) -> Analysis:
     """The :class:`Analysis` of forces ``f`` ((m_pad,) N) solved on ``model``
-    for ``layout`` by ``solver``; ``t0``: start time (perf_counter)."""
-    s, bad, dmax = (np.asarray(a)[: model.n] for a in brick_scores(model, f))
+    for ``layout`` by ``solver``; ``t0``: start time (perf_counter). Bricks
+    with no chain of contacts to the ground fail (:func:`floating_bricks`)."""
+    s, bad, dmax = (np.asarray(a)[: model.n] for a in brick_scores(model, f, floating=floating_bricks(model)))
     order = np.lexsort((dmax, s))  # by score, then drag
     w = int(order[-1])
     return Analysis(

@@ -43,7 +43,10 @@ class Params:
     (torques are compared against ``eq_tol * stud`` N m); drag_rtol: a
     largest drag within ``drag_rtol * T`` of T counts as reaching T (a drag
     exactly at capacity, as in knife-edge levers, comes out of any solver a
-    few ulps to either side of T).
+    few ulps to either side of T); ridge: weight of the term
+    ``ridge / (2 W) |f|^2`` (W: total weight, N) that the solvers add to
+    Eq. 9's cost so that its optimum, and so every score, is unique: the
+    canonical force distribution (see ``solvers/exact.py``); 0: the plain LP.
     """
 
     stud: float = 0.0078
@@ -54,6 +57,7 @@ class Params:
     beta: float = 1e-6
     eq_tol: float = 1e-4
     drag_rtol: float = 1e-6
+    ridge: float = 1e-8
 
 
 @dataclasses.dataclass(frozen=True)

@@ -2,8 +2,9 @@
 
 The one implementation of each formula every solver, the loss and repair
 use: :func:`largest_drag` (the largest drag on each brick's own bottom
-contacts), :func:`residual_bad` (out of equilibrium beyond the tolerance)
-and :func:`verdict` (Eq. 10). Works on numpy arrays (no per-shape jit
+contacts), :func:`residual_bad` (out of equilibrium beyond the tolerance),
+:func:`floating_bricks` (no chain of contacts to the ground) and
+:func:`verdict` (Eq. 10). Works on numpy arrays (no per-shape jit
 compiles) or JAX arrays and tracers (so it jits and vmaps); one
 (unbatched) model at a time, ``vmap`` it for batches.
 """
@@ -13,7 +14,7 @@ import numpy as np
 
 from .model import NORMAL, Params
 
-__all__ = ["residual", "largest_drag", "brick_drag", "residual_bad", "verdict", "brick_scores"]
+__all__ = ["residual", "largest_drag", "brick_drag", "residual_bad", "floating_bricks", "verdict", "brick_scores"]
 
 
 def _xp(*arrays):
@@ -69,6 +70,29 @@ def residual_bad(r, params: Params):
     return (r[:, :3].max(axis=1) > params.eq_tol) | (r[:, 3:].max(axis=1) > params.eq_tol * params.stud)
 
 
+def floating_bricks(model) -> np.ndarray:
+    """(n_pad,) bool: the real bricks with no chain of contacts that can
+    carry vertical force (knob connections, supports and frictions of plain
+    blocks; not side presses) to the ground.
+
+    A group of bricks joined to each other but not to the ground cannot
+    hold its weight, but Eq. 9 may put the whole group's residual on any one
+    of them; these bricks fail whatever the solver returns (host-side,
+    numpy and scipy; ``model`` a :class:`~stablelego_jax.model.ForceModel`
+    of numpy arrays)."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    n_pad = model.gravity.shape[0]
+    cb = np.asarray(model.col_brick)
+    vert = np.asarray(model.col_mask) & (np.abs(np.asarray(model.col_coef)[:, 0, 2]) > 0)
+    a, b = cb[vert, 0], cb[vert, 1]
+    # node n_pad is the ground (the sink of baseplate columns)
+    g = coo_matrix((np.ones(len(a)), (a, b)), shape=(n_pad + 1, n_pad + 1))
+    _, comp = connected_components(g, directed=False)
+    return np.asarray(model.brick_mask, bool) & (comp[:n_pad] != comp[n_pad])
+
+
 def verdict(dmax, bad, params: Params):
     """Paper Eq. 10: the score of each brick from its largest drag ``dmax``
     (N) and whether it is out of equilibrium (``bad``): 1 where ``bad`` or
@@ -77,14 +101,18 @@ def verdict(dmax, bad, params: Params):
     return xp.where(bad | (dmax >= params.T * (1.0 - params.drag_rtol)), 1.0, dmax / params.T)
 
 
-def brick_scores(model, f, params=None):
+def brick_scores(model, f, params=None, floating=None):
     """Eq. 10 score per brick (n_pad,), plus (residual_bad, max_drag).
 
-    See :func:`verdict`; padding bricks score 0.
+    See :func:`verdict`; padding bricks score 0. ``floating``: (n_pad,)
+    bool bricks that fail whatever their residual (:func:`floating_bricks`;
+    they count as out of equilibrium), or None.
     """
     p = params or model.params
     xp = _xp(f)
     bad = residual_bad(residual(model, f), p)
+    if floating is not None:
+        bad = bad | floating
     dmax = brick_drag(model, f)
     s = verdict(dmax, bad, p)
     return xp.where(model.brick_mask, s, 0.0), bad & model.brick_mask, dmax

@@ -52,3 +52,29 @@ def test_brick_scores_numpy_and_jax_agree():
     assert d_np[i] == pytest.approx(np.maximum(-f[cols], 0).max())
     assert brick_drag(model, f)[i] == d_np[i]
     assert np.abs(residual(model, f)[: model.n]).max() < 1e-6  # a stable-by-equilibrium solution
+
+
+def test_floating_bricks_follow_vertical_contacts_to_the_ground():
+    from stablelego_jax import make_layout
+    from stablelego_jax.score import floating_bricks
+
+    # a grounded pair, a brick beside it held by side presses only, a floating stack of two
+    lay = make_layout(["a", "b", "side", "c", "d"], [(0, 0, 0), (0, 0, 1), (2, 0, 1), (0, 0, 4), (0, 0, 5)],
+                      [(2, 4)] * 5, [0.00216] * 5)
+    model = compile_layout(lay)
+    np.testing.assert_array_equal(floating_bricks(model)[: model.n], [False, False, True, True, True])
+    padded = model.pad(8, model.m + 5)
+    np.testing.assert_array_equal(floating_bricks(padded), [False, False, True, True, True, False, False, False])
+
+
+def test_every_brick_of_a_floating_group_fails_with_every_solver():
+    """Eq. 9 may put a floating stack's whole residual on one of its bricks;
+    the verdict fails all of them, whatever the solver."""
+    from stablelego_jax import make_layout
+    from stablelego_jax.analysis import analyze_layout
+
+    lay = make_layout(["base", "c", "d"], [(0, 0, 0), (0, 0, 4), (0, 0, 5)], [(2, 4)] * 3, [0.00216] * 3)
+    for solver in ("exact", "jax"):
+        a = analyze_layout(lay, solver=solver)
+        assert a.scores["c"] == 1.0 and a.scores["d"] == 1.0, solver
+        assert a.scores["base"] < 1.0 and not a.stable

@@ -196,3 +196,19 @@ def test_cli_score_method(capsys, tmp_path):
     assert "method" in inspect.signature(score_files).parameters
     recs = {os.path.basename(r["file"]): r for r in map(json.loads, open(out))}
     assert recs["stair_20.json"]["solvable"] is False and recs["stair_19.json"]["solvable"] is True
+
+
+def test_enhanced_baseline_gives_the_canonical_scores_of_a_stable_layout():
+    """On a stable layout eb's optimal set is Eq. 9's, and with the same
+    canonical term both give the same scores (HiGHS' vertices differ)."""
+    from conftest import EXAMPLES
+
+    from stablelego_jax.formats.reader import load_layout
+
+    lay = load_layout(os.path.join(EXAMPLES, "brickgpt", "car.txt"))
+    ours = analyze_layout(lay, solver="exact")
+    eb = analyze_layout(lay, solver="exact", method="eb")
+    assert ours.stable and eb.solvable
+    assert "canonical distribution: Clarabel" in solve_baseline(compile_layout(lay), "eb").status
+    np.testing.assert_allclose([eb.scores[k] for k in lay.keys], [ours.scores[k] for k in lay.keys], atol=1e-3)
+    assert eb.weakest == ours.weakest

@@ -73,10 +73,72 @@ def test_exact_falls_back_to_interior_point(monkeypatch):
         return real(*args, method=method, **kw)
 
     monkeypatch.setattr(scipy.optimize, "linprog", flaky)  # exact.py imports it where it solves
-    r = exact.solve_exact(model)
+    r = exact.solve_exact(model, canonical=False)
     assert calls == ["highs", "highs-ipm"]
     assert r.success and "scaled highs-ipm after highs" in r.status
-    ref = exact.solve_exact(model, method="highs-ipm", scale=True)
+    ref = exact.solve_exact(model, method="highs-ipm", scale=True, canonical=False)
     assert r.objective == pytest.approx(ref.objective)
     with pytest.raises(ValueError):
         exact.solve_exact(model, method="simplex")
+
+
+def test_exact_falls_back_to_an_lp_vertex_when_clarabel_fails(monkeypatch):
+    from stablelego_jax.model import compile_layout
+    from stablelego_jax.solvers import exact
+
+    model = compile_layout(load_layout(os.path.join(EXAMPLES, "stablelego", "stair_20.json")))
+    monkeypatch.setattr(exact, "least_norm", lambda model, scale=True: (None, "NumericalError", float("nan")))
+    r = exact.solve_exact(model)
+    assert r.success and not r.canonical
+    assert "canonical distribution failed, Clarabel: NumericalError" in r.status
+    a = analyze_layout(load_layout(os.path.join(EXAMPLES, "stablelego", "stair_20.json")), solver="exact")
+    assert not a.stable and a.weakest == "2"
+
+
+def _scores(model, f):
+    from stablelego_jax.score import brick_scores
+
+    return np.asarray(brick_scores(model, f)[0])[: model.n]
+
+
+def test_canonical_distribution_is_an_optimum_of_least_norm():
+    """Each HiGHS method returns an optimal vertex of a tied layout; the
+    canonical distribution is an optimum too (its Eq. 9 cost that of the
+    LP), of smaller norm than any of them."""
+    from stablelego_jax.model import NORMAL, compile_layout
+    from stablelego_jax.score import brick_drag, residual
+    from stablelego_jax.solvers.exact import EXACT_METHODS, solve_exact
+
+    model = compile_layout(load_layout(os.path.join(EXAMPLES, "brickgpt", "car.txt")))
+    r = solve_exact(model)
+    assert r.canonical and r.success
+    p, x = model.params, r.f[: model.m]
+    # its cost, with drags and residuals at their least for these forces (residuals cost 1 per N and N m)
+    cost = (np.abs(residual(model, r.f)[: model.n]).sum() + p.alpha * brick_drag(model, r.f)[: model.n].sum()
+            + p.beta * np.where(model.col_kind[: model.m] == NORMAL, np.maximum(-x, 0.0), 0.0).sum())
+    for method in EXACT_METHODS:
+        v = solve_exact(model, method=method, canonical=False)
+        assert v.success and not v.canonical
+        assert cost == pytest.approx(v.objective, rel=1e-5)  # HiGHS' own tolerances
+        assert np.linalg.norm(r.f) <= np.linalg.norm(v.f)
+
+
+def test_canonical_scores_of_a_symmetric_layout_are_symmetric():
+    """Two pillars with loaded arms out to either side, tied by a beam, all
+    along y (the contact points of SPEC are symmetric under y -> -y, not
+    under x -> -x): the canonical distribution is mirror-symmetric (an LP
+    vertex need not be)."""
+    from stablelego_jax.model import compile_layout
+    from stablelego_jax.solvers.exact import solve_exact
+
+    keys = ["l0", "l1", "la", "lh", "r0", "r1", "ra", "rh", "beam"]
+    pos = [(0, 4, 0), (0, 4, 1), (0, 0, 2), (0, 0, 1), (0, 14, 0), (0, 14, 1), (0, 14, 2), (0, 18, 1), (0, 4, 3)]
+    size = [(2, 2), (2, 2), (2, 6), (2, 2), (2, 2), (2, 2), (2, 6), (2, 2), (2, 12)]
+    mass = [0.0011, 0.0011, 0.003, 0.02, 0.0011, 0.0011, 0.003, 0.02, 0.006]
+    model = compile_layout(make_layout(keys, pos, size, mass))
+    r = solve_exact(model)
+    s = dict(zip(keys, _scores(model, r.f)))
+    assert r.canonical
+    for k in ("0", "1", "a", "h"):
+        assert s["l" + k] == pytest.approx(s["r" + k], abs=1e-6)
+    assert max(s.values()) > 0.01

@@ -6,7 +6,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from conftest import SHARED_REF, needs_shared
+from conftest import EXAMPLES, SHARED_REF, needs_shared
 
 from stablelego_jax.analysis import analyze_layout, make_analysis
 from stablelego_jax.formats.reader import load_layout
@@ -108,3 +108,14 @@ def test_paper_structures_match_labels_and_highs(tmp_path):
             assert r["weakest"] == lab["collapses_at"] == ex.weakest, name
         else:
             assert max(abs(r["scores"][k] - ex.scores[k]) for k in ex.scores) < 1e-3, name
+
+
+def test_least_norm_term_gives_the_exact_canonical_scores():
+    """The JAX interior point with its least-norm term (IPMOptions.ridge)
+    returns the exact solver's canonical distribution on a tied layout."""
+    lay = load_layout(os.path.join(EXAMPLES, "brickgpt", "ship.txt"))
+    ex = analyze_layout(lay, solver="exact")
+    jx = analyze_layout(lay, solver="jax", fallback=False)
+    assert jx.converged and jx.weakest == ex.weakest
+    np.testing.assert_allclose([jx.scores[k] for k in lay.keys], [ex.scores[k] for k in lay.keys], atol=1e-3)
+    assert jx.objective == pytest.approx(ex.objective, rel=1e-5)

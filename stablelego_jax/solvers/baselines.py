@@ -39,7 +39,11 @@ checks that the two formulations agree.
 
 Forces of a solvable layout: the distribution minimising the drag part of
 Eq. 9 (``alpha * sum_b max drag on b's bottom + beta * sum D``) over the
-feasible set, i.e. the least-friction equilibrium.
+feasible set, i.e. the least-friction equilibrium; with ``canonical`` (the
+default, LP formulation) the canonical one among them, as for Eq. 9 (the
+term ``Params.ridge / (2 W) |x|^2`` added, solved by Clarabel once HiGHS
+has found the layout solvable; see ``exact.py``), so that a stable layout
+gets the same scores from eb as from Eq. 9.
 """
 from __future__ import annotations
 
@@ -49,7 +53,7 @@ import numpy as np
 
 from ..model import KNOB, NORMAL, SIDE, ForceModel, normal_groups
 from ..score import largest_drag
-from .exact import EXACT_METHODS, equilibrium_matrix
+from .exact import EXACT_METHODS, equilibrium_matrix, ridge_weights, solve_qp
 
 # scipy.sparse and scipy.optimize are imported where they are used (see exact.py)
 
@@ -136,7 +140,8 @@ def _build(model: ForceModel, method: str, scale: bool):
     return A, -g, kind, col, slot, owner
 
 
-def _solve_lp(model: ForceModel, method: str, lp_method: str, scale: bool, time_limit: float | None):
+def _solve_lp(model: ForceModel, method: str, lp_method: str, scale: bool, time_limit: float | None,
+              canonical: bool = True):
     import scipy.sparse as sp
     from scipy.optimize import linprog
 
@@ -173,7 +178,14 @@ def _solve_lp(model: ForceModel, method: str, lp_method: str, scale: bool, time_
     opts = {} if time_limit is None else {"time_limit": float(time_limit)}
     res = linprog(c, A_ub=A_ub, b_ub=b_ub, A_eq=A_eq, b_eq=b, bounds=bounds, method=lp_method, options=opts)
     x = None if res.x is None else res.x[:q]
-    return res.status, res.message, x, res.fun, (kind, col, slot, owner)
+    msg, fun = res.message, res.fun
+    if canonical and res.status == 0 and p.ridge > 0:
+        z, st = solve_qp(c, A_eq, b, A_ub, b_ub, bounds, ridge_weights(model, q, len(c)))
+        if z is None:
+            msg = f"{msg} (the canonical distribution failed, Clarabel: {st}; an optimal LP vertex instead)"
+        else:
+            x, fun, msg = z[:q], float(c @ z), f"{msg}; canonical distribution: Clarabel {st}"
+    return res.status, msg, x, fun, (kind, col, slot, owner)
 
 
 def _solve_milp(model: ForceModel, scale: bool, time_limit: float | None):
@@ -220,6 +232,7 @@ def solve_baseline(
     scale: bool = True,
     formulation: str = "lp",
     time_limit: float | None = None,
+    canonical: bool = True,
 ) -> BaselineResult:
     """Solve baseline ``method`` ("luo" or "eb", see the module doc) on a compiled model.
 
@@ -227,7 +240,8 @@ def solve_baseline(
     scale: torque rows in N stud (the same constraints, better conditioned);
     formulation: "lp" or, for eb only, "milp" (Eq. 4 with binaries);
     time_limit: seconds per solve (None: none); a solve stopped without a
-    feasible point gives ``solvable=None``.
+    feasible point gives ``solvable=None``; canonical: the canonical
+    distribution of a solvable layout (LP formulation; see the module doc).
     """
     if method not in BASELINES:
         raise ValueError(f"baseline method must be one of {BASELINES}, got {method!r}")
@@ -241,10 +255,10 @@ def solve_baseline(
     if formulation == "milp":
         status, msg, x, fun, info = _solve_milp(model, scale, time_limit)
     else:
-        status, msg, x, fun, info = _solve_lp(model, method, exact_method, scale, time_limit)
+        status, msg, x, fun, info = _solve_lp(model, method, exact_method, scale, time_limit, canonical)
         if status == 4 and (exact_method, scale) != ("highs-ipm", True):  # numerical trouble: retry
             first = msg
-            status, msg, x, fun, info = _solve_lp(model, method, "highs-ipm", True, time_limit)
+            status, msg, x, fun, info = _solve_lp(model, method, "highs-ipm", True, time_limit, canonical)
             msg = f"{msg} (scaled highs-ipm after {exact_method}: {first})"
     dt = time.perf_counter() - t0
     kind, col, slot, owner = info

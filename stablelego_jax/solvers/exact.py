@@ -1,9 +1,23 @@
-"""Exact referee: the Eq. 9 problem as a linear programme solved by HiGHS.
+"""Exact referee: the Eq. 9 problem as a linear programme solved by HiGHS,
+and its canonical (least-norm) optimal force distribution.
 
 Variables: forces f (m), drags D (one per NORMAL column), residual parts
 r+ and r- (6 n each) and per-brick max drag t (n). Minimises
 ``sum |A f + g|_1 + alpha sum t + beta sum D`` subject to ``D >= -n``,
 ``D <= t`` for every contact of the brick, SIDE presses >= 0.
+
+Eq. 9's optimum is often not unique (a statically indeterminate layout
+carries its weight in many ways at the same cost), and each LP method
+returns a different optimal vertex, hence different per-brick scores. The
+*canonical* distribution (the default) is the minimiser of Eq. 9's cost plus
+``ridge / (2 W) |f|^2`` (``Params.ridge`` = 1e-8, W the layout's total
+weight, f in N): unique (strictly convex in the forces, which fix every other
+variable), symmetric for symmetric layouts, continuous in the loads, and for
+a small enough ridge exactly the least-norm optimum of Eq. 9 (exact
+regularisation of linear programmes, Mangasarian and Meyer 1979); the JAX
+interior point solves the same problem. It is a convex QP solved here by
+Clarabel, an interior-point method (HiGHS' QP method is an active-set method
+that stalls at ~100 bricks).
 """
 from __future__ import annotations
 
@@ -14,11 +28,14 @@ from ..model import NORMAL, SIDE, ForceModel
 # scipy.sparse and scipy.optimize are imported where they are used: importing
 # them costs about half a second, which the JAX path of a short run never needs.
 
-__all__ = ["solve_exact", "ExactResult", "EXACT_METHODS", "equilibrium_matrix", "lp_arrays"]
+__all__ = ["solve_exact", "least_norm", "solve_qp", "ridge_weights", "ExactResult", "EXACT_METHODS",
+           "equilibrium_matrix", "lp_arrays"]
 
 
 class ExactResult(dict):
-    """``f`` (m,) forces, ``objective``, ``status`` (HiGHS message), ``success``."""
+    """``f`` (m_pad,) forces (N), ``objective`` (their Eq. 9 cost),
+    ``status`` (the solver's message), ``success`` (a solution was found),
+    ``canonical`` (it is the canonical distribution, not an LP vertex)."""
 
     __getattr__ = dict.__getitem__
 
@@ -47,33 +64,93 @@ def equilibrium_matrix(model: ForceModel):
 EXACT_METHODS = ("highs", "highs-ds", "highs-ipm")
 
 
-def solve_exact(model: ForceModel, method: str = "highs", scale: bool = True) -> ExactResult:
-    """Solve the Eq. 9 LP exactly with HiGHS ``method`` ("highs": HiGHS
-    chooses, in practice dual simplex; "highs-ds"; "highs-ipm": interior
-    point with crossover, much faster on layouts of hundreds of bricks).
+def solve_exact(model: ForceModel, method: str = "highs", scale: bool = True, canonical: bool = True) -> ExactResult:
+    """Solve Eq. 9 exactly: the canonical distribution (:func:`least_norm`,
+    Clarabel) unless ``canonical`` is False or ``model.params.ridge`` is 0,
+    else (and when Clarabel fails: ``status`` says so) the LP with HiGHS
+    ``method`` ("highs": HiGHS chooses, in practice dual simplex;
+    "highs-ds"; "highs-ipm": interior point with crossover, much faster on
+    layouts of hundreds of bricks), an optimal vertex: on a degenerate LP
+    different methods may return different optimal vertices (same
+    objective, different per-brick scores).
 
-    ``scale`` (default on): write the torque rows in N stud instead of N m (the same LP,
+    ``scale`` (default on): write the torque rows in N stud instead of N m (the same problem,
     better conditioned: in N m they are ~100x smaller than the force rows,
     near HiGHS' tolerances, and on layouts of hundreds of bricks HiGHS then
     stops with "Status 0: Not Set" or stalls).
 
-    When the first solve returns no solution, the LP is solved again scaled
-    with "highs-ipm"; ``status`` then says so. Every answer is an optimal
-    vertex; on a degenerate LP different settings may return different
-    optimal vertices (same objective, different per-brick scores).
+    When the LP's first solve returns no solution, it is solved again scaled
+    with "highs-ipm"; ``status`` then says so.
     """
     if method not in EXACT_METHODS:
         raise ValueError(f"method must be one of {EXACT_METHODS}, got {method!r}")
+    f = np.zeros(model.m_pad)
+    failed = ""
+    if canonical and model.params.ridge > 0:
+        x, msg, cost = least_norm(model, scale)
+        if x is not None:
+            f[:model.m] = x
+            return ExactResult(f=f, objective=cost, status=f"Clarabel: {msg}", success=True, canonical=True)
+        failed = f" (the canonical distribution failed, Clarabel: {msg}; an optimal LP vertex instead)"
     res = _solve_lp(model, method, scale)
     if res.status != 0 and (method, scale) != ("highs-ipm", True):
         first = res.message
         res = _solve_lp(model, "highs-ipm", True)
         res.message = f"{res.message} (scaled highs-ipm after {method}: {first})"
-    f = np.zeros(model.m_pad)
     if res.x is not None:
         f[:model.m] = res.x[:model.m]
     return ExactResult(f=f, objective=float(res.fun) if res.fun is not None else float("nan"),
-                       status=res.message, success=bool(res.status == 0))
+                       status=res.message + failed, success=bool(res.status == 0), canonical=False)
+
+
+def least_norm(model: ForceModel, scale: bool = True):
+    """The canonical distribution: the minimiser of Eq. 9's cost plus
+    ``ridge / (2 W) |f|^2`` (``model.params.ridge``; W: total weight, N;
+    f: forces, N), a convex QP over the variables of :func:`lp_arrays`,
+    solved by Clarabel. Returns ``(f, status, cost)``: f (m,) N or None when
+    Clarabel did not solve it ("Solved", or "AlmostSolved": its reduced
+    tolerances), cost its Eq. 9 value (N-based units)."""
+    c, A_eq, b_eq, A_ub, b_ub, bounds = lp_arrays(model, scale)
+    m = model.m
+    x, status = solve_qp(c, A_eq, b_eq, A_ub, b_ub, bounds, ridge_weights(model, m, len(c)))
+    if x is None:
+        return None, status, float("nan")
+    return x[:m], status, float(c @ x)
+
+
+def ridge_weights(model: ForceModel, k: int, size: int) -> np.ndarray:
+    """(size,) diagonal of the canonical term's Hessian: ``ridge / W`` on
+    the first ``k`` variables (the forces, N), 0 on the rest."""
+    w = float(np.abs(model.gravity[:model.n, 2]).sum())
+    return np.concatenate([np.full(k, model.params.ridge / max(w, 1e-30)), np.zeros(size - k)])
+
+
+def solve_qp(c, A_eq, b_eq, A_ub, b_ub, bounds, p_diag):
+    """``min c x + x diag(p_diag) x / 2`` subject to the constraints in
+    :func:`scipy.optimize.linprog`'s form (sparse ``A_eq``, ``A_ub``;
+    ``bounds`` (N, 2), +-inf where unbounded), by Clarabel to 1e-10.
+    Returns ``(x, status)``; x None unless Clarabel reports "Solved" or
+    "AlmostSolved" (its reduced tolerances)."""
+    import clarabel
+    import scipy.sparse as sp
+
+    N = len(c)
+    lo, hi = bounds[:, 0], bounds[:, 1]
+    fl, fh = np.nonzero(np.isfinite(lo))[0], np.nonzero(np.isfinite(hi))[0]
+    A = sp.vstack([
+        A_eq, A_ub,
+        sp.csr_matrix((-np.ones(len(fl)), (np.arange(len(fl)), fl)), shape=(len(fl), N)),
+        sp.csr_matrix((np.ones(len(fh)), (np.arange(len(fh)), fh)), shape=(len(fh), N)),
+    ]).tocsc()
+    b = np.concatenate([b_eq, b_ub, -lo[fl], hi[fh]])
+    cones = [clarabel.ZeroConeT(A_eq.shape[0]), clarabel.NonnegativeConeT(A.shape[0] - A_eq.shape[0])]
+    st = clarabel.DefaultSettings()
+    st.verbose = False
+    st.tol_gap_abs = st.tol_gap_rel = st.tol_feas = 1e-10
+    sol = clarabel.DefaultSolver(sp.diags(p_diag).tocsc(), np.asarray(c, float), A, b, cones, st).solve()
+    if sol.status not in (clarabel.SolverStatus.Solved, clarabel.SolverStatus.AlmostSolved):
+        return None, str(sol.status)
+    return np.asarray(sol.x), str(sol.status)
 
 
 def lp_arrays(model: ForceModel, scale: bool = True):

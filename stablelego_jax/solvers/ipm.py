@@ -53,7 +53,9 @@ class IPMOptions:
     of the step to the boundary; init: scale of the starting interior point;
     reg_rel, reg_abs: static regularisation of the reduced matrix (relative
     to its diagonal, and times its largest diagonal entry); refine:
-    iterative-refinement steps of each Newton solve.
+    iterative-refinement steps of each Newton solve. The cost includes the
+    canonical term ``Params.ridge / (2 W) |x|^2`` (W: total weight), as the
+    exact solver's (``exact.least_norm``).
     """
 
     max_iter: int = 80
@@ -97,6 +99,8 @@ def _system(prob: Problem, params: Params, opts: IPMOptions) -> dict:
         return jnp.concatenate([v, jnp.zeros((1,), v.dtype)])[group].sum(axis=1)
 
     alpha, beta = params.alpha, params.beta
+    # the canonical term on the forces: ridge / (total weight, in T) (see Params)
+    reg = params.ridge / jnp.maximum(jnp.abs(g[:, 2]).sum(), 1e-30)
 
     # --- static scatter indices for assembling the blocks of M
     cb = prob.col_brick
@@ -168,8 +172,11 @@ def _system(prob: Problem, params: Params, opts: IPMOptions) -> dict:
     def dot(a, b):
         return sum((x * y).sum() for x, y in zip(a, b))
 
+    def grad(z):  # gradient of the cost: c + (reg x, 0, ...)
+        return (cvec[0] + reg * z[0],) + cvec[1:]
+
     def residuals(z, nu, lam):
-        rd = jax.tree_util.tree_map(lambda c, gl, e: c - gl + e, cvec, Gt(lam), Et(nu))
+        rd = jax.tree_util.tree_map(lambda c, gl, e: c - gl + e, grad(z), Gt(lam), Et(nu))
         rp = Ez(z) + g
         return rd, rp
 
@@ -178,7 +185,7 @@ def _system(prob: Problem, params: Params, opts: IPMOptions) -> dict:
         Wt = tuple(jnp.where(a > 0, l_ / s_, 0.0) for l_, s_, a in zip(lam, s, act))
         W1, W2, W3, W4, W5, W6, W7 = Wt
         d = opts.delta
-        hx = W1 + W4 + d
+        hx = W1 + W4 + d + reg
         hD = W1 + W2 + W3 + d
         ht = W5 + segsum(W3) + d
         a = hD - W1 * W1 / hx
@@ -235,8 +242,9 @@ def _system(prob: Problem, params: Params, opts: IPMOptions) -> dict:
 
     def measures(z, nu, lam):
         rd, rp_res = residuals(z, nu, lam)
-        obj = dot(cvec, z)
-        dual = (nu * g).sum()
+        q = reg * (z[0] * z[0]).sum()
+        obj = dot(cvec, z) + q / 2
+        dual = (nu * g).sum() - q / 2  # the QP's (Wolfe) dual value
         pres = jnp.abs(rp_res).max()
         dres = jnp.stack([jnp.abs(r).max() for r in rd]).max()
         # complementarity gap sum(s lam): the duality gap once residuals vanish (the
@@ -313,4 +321,5 @@ def solve(prob: Problem, params: Params = Params(), opts: IPMOptions = IPMOption
               pres=big, dres=big, obj=big, dual=-big)
     c = jax.lax.while_loop(lambda c: (~c["done"]) & (c["it"] < opts.max_iter), body, c0)
     gap = (c["obj"] - c["dual"]) / jnp.maximum(jnp.abs(c["obj"]), 1e-12)
-    return make_solution(prob, params, c["z"][0], c["it"], c["ok"], c["pres"], c["dres"], c["obj"], c["dual"], gap)
+    cost = dot(K["cvec"], c["z"])  # the Eq. 9 value, without the least-norm term
+    return make_solution(prob, params, c["z"][0], c["it"], c["ok"], c["pres"], c["dres"], cost, c["dual"], gap)
