@@ -160,6 +160,31 @@ def test_gradients_on_the_loaded_lever():
     assert float(gl[13]) > 0
 
 
+def test_score_gradients_with_respect_to_loads():
+    """Issue 18 item 2: how much closer to failing a brick gets per kilogram
+    hung on any brick, d soft_scores[k] / d loads, by the implicit adjoint,
+    against central differences of the scores themselves."""
+    from stablelego_jax.loss import soft_scores
+
+    lay = load_layout(os.path.join(REF, "stick_light.json"))
+    prob = _pad(soft_problem(lay))
+    w = np.zeros(SHAPE[0])
+    w[: lay.n] = 1.0
+    loads = np.zeros(SHAPE[0])
+    loads[[3, 9]] = 0.001  # a gram on two bricks: still standing
+    (s, _), ok = _scores(w, loads, prob)
+    assert bool(ok)
+    k = int(np.argmax(np.asarray(s)[: lay.n]))  # the weakest brick, stable (score < 1)
+    assert 0.0 < float(s[k]) < 1.0
+    grad = jax.jit(jax.grad(lambda w_, l_, p_: soft_scores(w_, l_, p_, opts=OPTS)[0][k], argnums=1))
+    g = np.asarray(grad(w, loads, prob))
+    assert np.isfinite(g).all() and np.abs(g[lay.n:]).max() == 0.0  # padding bricks carry no load
+    top = [int(i) for i in np.argsort(-np.abs(g[: lay.n]))[:4]]
+    _fd_check(lambda v: float(_scores(w, v, prob)[0][0][k]), g, loads, top, 1e-4)
+    # weight on the bricks the weakest one holds up makes it weaker
+    assert g[top[0]] > 0
+
+
 def test_jit_vmap_grad():
     lay, soft = _stair()
     prob = _pad(soft.problem)
