@@ -25,6 +25,7 @@ import hashlib
 import json
 import multiprocessing
 import os
+import sys
 import time
 from typing import Iterable, Iterator, Sequence
 
@@ -36,6 +37,7 @@ from .blas import one_blas_thread
 from .files import atomic_write, atomic_write_text, cut, read_text
 from .formats.dataset import score_grid
 from .formats import rows
+from .formats.ldraw import unsupported_message
 from .layout import LayoutError
 from .model import Params, compile_layout
 from .progress import Progress
@@ -234,6 +236,7 @@ class ScoreStats:
     errors: int = 0
     not_converged: int = 0
     retried: int = 0
+    left_out: int = 0
     compile_s: float = 0.0
     solve_s: float = 0.0
     load_s: float = 0.0
@@ -473,6 +476,7 @@ def _score_files(
     id_column: str | None = None,
     jobs: int = 1,
     shard: tuple[int, int] | None = None,
+    skip_unsupported: bool = False,
 ) -> ScoreStats:
     """Score every layout of ``inputs`` into the JSON-lines file ``out``
     (``score_files`` runs this with one OpenBLAS thread: :mod:`~stablelego_jax.blas`).
@@ -494,7 +498,10 @@ def _score_files(
     ``row`` and ``id``); jobs: worker processes of the exact solver and the
     baselines (:func:`iter_analyses`); shard: (K, N) scores only the inputs of
     shard K of N (:func:`in_shard`), so N processes or hosts split a dataset
-    with no coordination (each its own ``out``). Returns run totals; files already in ``out``
+    with no coordination (each its own ``out``); skip_unsupported: LDraw
+    files are scored without the parts that cannot be modelled (their line
+    gets ``left_out`` {part: count}, stderr a warning; ``left_out`` in the
+    totals counts such files), instead of an error line. Returns run totals; files already in ``out``
     are skipped. The solving is :func:`iter_analyses`; lines are appended and
     flushed per solver call.
     """
@@ -527,12 +534,16 @@ def _score_files(
         for c0 in range(0, len(todo), chunk):
             part = todo[c0: c0 + chunk]
             t0 = time.perf_counter()
-            loaded, errs = [], []
+            loaded, errs, left = [], [], {}
             for p in part:
+                report: dict = {}
                 try:
-                    loaded.append((p, rows.load_source(p, library, column, id_column)))
+                    loaded.append((p, rows.load_source(p, library, column, id_column, skip_unsupported, report)))
                 except Exception as exc:  # a bad layout is reported, the run goes on
                     errs.append(dict(rows.result_fields(p), error=error_message(str(p), exc)))
+                if report:
+                    left[str(p)] = report
+                    bar.write(f"warning: {p}: left out, {unsupported_message(report)}", sys.stderr)
             st.load_s += time.perf_counter() - t0
             if errs:
                 emit(errs)
@@ -550,6 +561,9 @@ def _score_files(
                     if write_scores and isinstance(p, str) and os.path.isdir(p) and a.scores:
                         _write_score_grid(p, lay, a.scores)
                     rec = dict(a.to_json(), **rows.result_fields(p))
+                    if str(p) in left:
+                        rec["left_out"] = {k: c for k, (c, _) in left[str(p)].items()}
+                        st.left_out += 1
                     if solver != "exact":
                         rec["iters"] = a.iters
                     recs.append(rec)

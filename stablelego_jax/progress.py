@@ -43,6 +43,11 @@ class Progress:
             self.bar.write(f"[{self.count}/{self.total}] {message}", file=self.stream)
         self.bar.update(1)
 
+    def write(self, line: str, stream=None) -> None:
+        """Print ``line`` (to ``stream``, default the bar's) without
+        breaking the bar; shown even when the bar is disabled (warnings)."""
+        self.bar.write(line, file=self.stream if stream is None else stream)
+
     def advance(self, k: int = 1) -> None:
         self.count += int(k)
         self.bar.update(int(k))

@@ -131,6 +131,25 @@ def test_ldraw_model_with_unsupported_parts(tmp_path, capsys):
     assert back.size[:, 2].tolist() == [3, 1, 3] and back.pos[:, 2].tolist() == [0, 3, 4]
 
 
+def test_score_skips_unsupported_parts_only_when_asked(tmp_path, capsys):
+    src = tmp_path / "model.mpd"
+    src.write_text(MODEL)
+    out = tmp_path / "r.jsonl"
+    assert cli.main(["score", str(src), "--out", str(out), "--solver", "exact", "--quiet"]) == 1
+    rec = json.loads(out.read_text())
+    assert "3 parts cannot be modelled: 3039 x2 (line 5), 3068b x1 (line 7)" in rec["error"]
+    capsys.readouterr()
+    out2 = tmp_path / "r2.jsonl"
+    assert cli.main(["score", str(src), "--out", str(out2), "--solver", "exact", "--quiet",
+                     "--skip-unsupported"]) == 0
+    rec = json.loads(out2.read_text())
+    assert rec["stable"] and sorted(rec["scores"]) == ["1", "2", "3"]
+    assert rec["left_out"] == {"3039": 2, "3068b": 1}
+    err = capsys.readouterr().err
+    assert f"warning: {src}: left out, 3 parts cannot be modelled" in err
+    assert "1 scored (1 without unsupported parts)" in err
+
+
 @pytest.mark.parametrize("name", ["stack8_moved.json", "lego_single_knob.json"])
 def test_examples_read_as_scenes(name):
     sc = load_layout(os.path.join(EXT, name))

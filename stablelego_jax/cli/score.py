@@ -25,7 +25,8 @@ def add_parser(sub, methods, exact_methods) -> None:
     sc.add_argument("--method", choices=list(methods), default="ours",
                     help="ours (default), luo or eb (baselines, exact solver; lines get 'solvable')")
     sc.add_argument("--exact-method", choices=list(exact_methods), default="highs",
-                    help="HiGHS method of --solver exact (default highs: HiGHS chooses)")
+                    help="HiGHS method of --solver exact where it solves the LP (default highs: HiGHS chooses); "
+                         "the canonical distribution (the default) is solved by Clarabel whatever this says")
     sc.add_argument("--batch", type=int, default=64, help="most layouts per solver call (default 64)")
     sc.add_argument("--devices", default="all", help="'all' or the number of local devices to shard over")
     sc.add_argument("--jobs", type=int, default=None,
@@ -41,6 +42,9 @@ def add_parser(sub, methods, exact_methods) -> None:
                          "a text layout or StableLego JSON per row")
     sc.add_argument("--id-column", default=None,
                     help="name each row's result FILE#ID by this column (default: FILE#ROW, 0-based)")
+    sc.add_argument("--skip-unsupported", action="store_true",
+                    help="LDraw: score the parts that can be modelled, with a warning naming the others "
+                         "(the line gets 'left_out'); without it such a file gets an error line")
     sc.add_argument("--quiet", action="store_true", help="no progress bar")
     sc.set_defaults(func=cmd_score)
 
@@ -69,13 +73,14 @@ def cmd_score(args) -> int:
             args.inputs, args.out, solver=solver_for(args), batch=args.batch, devices=args.devices,
             write_scores=args.write_scores, library=args.library, progress=not args.quiet,
             exact_method=args.exact_method, method=args.method, column=args.column, id_column=args.id_column,
-            jobs=args.jobs or cpu_cores(), shard=shard,
+            jobs=args.jobs or cpu_cores(), shard=shard, skip_unsupported=args.skip_unsupported,
         )
     except (ValueError, OSError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     print(
-        f"{st.scored} scored, {st.skipped} already in {args.out}, {st.errors} errors, "
+        f"{st.scored} scored{f' ({st.left_out} without unsupported parts)' if st.left_out else ''}, "
+        f"{st.skipped} already in {args.out}, {st.errors} errors, "
         f"{st.not_converged} not converged ({st.retried} solved again); solve {st.solve_s:.1f} s, compile {st.compile_s:.1f} s "
         f"({st.compiles} shapes), wall {st.wall_s:.1f} s",
         file=sys.stderr,

@@ -163,15 +163,17 @@ def expand(path: str, id_column: str | None = None) -> list:
         return [path]
 
 
-def load_source(source, library=None, column: str | None = None, id_column: str | None = None) -> Layout:
+def load_source(source, library=None, column: str | None = None, id_column: str | None = None,
+                skip_unsupported: bool = False, report: dict | None = None) -> Layout:
     """The Layout of a layout source: a RowRef, or a path for
     :func:`~stablelego_jax.formats.reader.load_layout` (a row file that
-    could not be expanded raises its reason)."""
+    could not be expanded raises its reason; ``skip_unsupported``,
+    ``report``: LDraw parts that cannot be modelled, as there)."""
     if isinstance(source, RowRef):
         return load_row(source, library, column)
     if is_row_file(source):
         row_refs(source, id_column)
-    return load_layout(source, library)
+    return load_layout(source, library, skip_unsupported, report)
 
 
 def result_fields(source) -> dict:
