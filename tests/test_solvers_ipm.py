@@ -3,7 +3,6 @@ import json
 import os
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 import pytest
 from conftest import EXAMPLES, SHARED_REF, needs_shared
