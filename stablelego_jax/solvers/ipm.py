@@ -49,7 +49,10 @@ class IPMOptions:
     tolerance (inf-norm); eps_gap_abs, eps_gap_rel: gap tolerance
     ``tol = abs + rel |obj|``: converged when the complementarity gap
     sum(s lam) <= tol and obj - dual bound <= 100 tol (1e-10 abs keeps drags
-    ~1e-7 T from optimal); delta: primal regularisation of free forces; step: fraction
+    ~1e-7 T from optimal); delta: proximal regularisation of the forces in
+    the Newton matrix (at least 1e-8 when ``Params.ridge`` is 0: free forces
+    then have no curvature; with the canonical term a larger delta damps the
+    steps along the optimal set and stalls the last iterations); step: fraction
     of the step to the boundary; init: scale of the starting interior point;
     reg_rel, reg_abs: static regularisation of the reduced matrix (relative
     to its diagonal, and times its largest diagonal entry); refine:
@@ -62,7 +65,7 @@ class IPMOptions:
     eps_feas: float = 1e-8
     eps_gap_abs: float = 1e-10
     eps_gap_rel: float = 1e-7
-    delta: float = 1e-8
+    delta: float = 1e-12
     reg_rel: float = 0.0
     reg_abs: float = 1e-16
     refine: int = 2
@@ -184,7 +187,8 @@ def _system(prob: Problem, params: Params, opts: IPMOptions) -> dict:
         s = G(z)
         Wt = tuple(jnp.where(a > 0, l_ / s_, 0.0) for l_, s_, a in zip(lam, s, act))
         W1, W2, W3, W4, W5, W6, W7 = Wt
-        d = opts.delta
+        # proximal term of the forces; the plain LP (ridge 0) gives them no curvature of their own
+        d = opts.delta if params.ridge > 0 else max(opts.delta, 1e-8)
         hx = W1 + W4 + d + reg
         hD = W1 + W2 + W3 + d
         ht = W5 + segsum(W3) + d
