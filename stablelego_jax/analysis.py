@@ -10,7 +10,7 @@ from .blas import one_blas_thread
 from .formats.reader import load_layout
 from .layout import Layout, LayoutError, Library
 from .model import ForceModel, Params, compile_layout
-from .score import brick_scores, floating_bricks, residual
+from .score import brick_scores, floating_bricks, residual, weakest_brick
 from .solvers.baselines import METHODS, residual_split, solve_baseline
 from .solvers.exact import solve_exact
 
@@ -29,7 +29,7 @@ class Analysis:
     """Result of analysing one layout.
 
     scores: {key: Eq. 10 score}; stable: every score < 1; weakest: key of
-    the highest score (ties broken by the larger drag); forces: (m,) solved
+    the highest score (ties within 1e-6: the larger drag, then input order; score.weakest_brick); forces: (m,) solved
     force per column (N, see model.ForceModel); max_drag: {key: N};
     residual: (n, 6) equilibrium residual (N, N m); converged/iters/gap:
     solver diagnostics (the exact solver reports HiGHS success).
@@ -164,8 +164,7 @@ def make_analysis(layout, model, f, solver, converged, t0, **diag) -> Analysis:
     for ``layout`` by ``solver``; ``t0``: start time (perf_counter). Bricks
     with no chain of contacts to the ground fail (:func:`floating_bricks`)."""
     s, bad, dmax = (np.asarray(a)[: model.n] for a in brick_scores(model, f, floating=floating_bricks(model)))
-    order = np.lexsort((dmax, s))  # by score, then drag
-    w = int(order[-1])
+    w = weakest_brick(s, dmax, model.params.T)
     return Analysis(
         file=layout.source,
         layout=layout,
@@ -288,7 +287,7 @@ def analyze_baseline(layout: Layout, model: ForceModel, method: str, t0: float |
         s = np.minimum(r.max_drag / T, 1.0)
         scores = dict(zip(keys, s.tolist()))
         dmax = dict(zip(keys, r.max_drag.tolist()))
-        weakest = keys[int(np.lexsort((r.max_drag, s))[-1])]
+        weakest = keys[weakest_brick(s, r.max_drag, T)]
         res = residual_split(model, r.f_split)
     forces = r.f[: model.m] if r.f is not None else r.f_split
     return Analysis(

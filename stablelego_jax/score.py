@@ -14,7 +14,11 @@ import numpy as np
 
 from .model import NORMAL, Params
 
-__all__ = ["residual", "largest_drag", "brick_drag", "residual_bad", "floating_bricks", "verdict", "brick_scores"]
+__all__ = ["residual", "largest_drag", "brick_drag", "residual_bad", "floating_bricks", "verdict", "brick_scores",
+           "weakest_brick", "TIE"]
+
+#: Scores (and drags / T) closer than this are a tie for the weakest brick.
+TIE = 1e-6
 
 
 def _xp(*arrays):
@@ -116,3 +120,15 @@ def brick_scores(model, f, params=None, floating=None):
     dmax = brick_drag(model, f)
     s = verdict(dmax, bad, p)
     return xp.where(model.brick_mask, s, 0.0), bad & model.brick_mask, dmax
+
+
+def weakest_brick(scores, dmax, T: float) -> int:
+    """Index of the weakest brick: the highest score; among scores within
+    :data:`TIE` of it, the largest drag (within ``TIE * T``); then the first
+    in input order. Exact ties (symmetric bricks, several floating bricks)
+    so get one answer whatever the solver's last digits. scores, dmax: (n,)
+    numpy, n >= 1; T: N."""
+    s, d = np.asarray(scores, float), np.asarray(dmax, float)
+    top = s >= s.max() - TIE
+    d = np.where(top, d, -np.inf)
+    return int(np.argmax(top & (d >= d.max() - TIE * T)))

@@ -274,13 +274,13 @@ def test_ply_triangle_strips_are_read(tmp_path):
 
 
 def test_unconverged_jax_run_is_solved_again_and_says_by_whom(tmp_path, capsys):
-    """A 10 kg load on brick '6' of stick_heavy stops the interior point
-    unconverged (it stalls before its cap): the answer comes from HiGHS and
-    the line says so."""
+    """A 100 kg load on brick '6' of stick_heavy stops the interior point
+    unconverged (it stalls before its cap; 10 kg did so until the proximal
+    term shrank): the answer comes from the exact solver and the line says so."""
     from stablelego_jax.analysis import analyze
 
     raw = json.load(open(os.path.join(STABLELEGO, "stick_heavy.json")))
-    raw["6"]["mass"] = 10.0
+    raw["6"]["mass"] = 100.0
     lay = _write(tmp_path / "heavy.json", raw)
     raw_jax = analyze(lay, solver="jax", fallback=False)
     assert not raw_jax.converged  # the case this test is about

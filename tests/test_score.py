@@ -78,3 +78,14 @@ def test_every_brick_of_a_floating_group_fails_with_every_solver():
         a = analyze_layout(lay, solver=solver)
         assert a.scores["c"] == 1.0 and a.scores["d"] == 1.0, solver
         assert a.scores["base"] < 1.0 and not a.stable
+
+
+def test_weakest_brick_breaks_ties_by_drag_then_input_order():
+    from stablelego_jax.score import weakest_brick
+
+    T = 0.98
+    # scores within 1e-6 of the highest tie; the larger drag wins, then the first
+    assert weakest_brick([0.5, 0.9, 0.9 - 1e-9, 0.2], [0.1, 0.3, 0.4, 0.0], T) == 2
+    assert weakest_brick([0.5, 0.9, 0.9 - 1e-9, 0.2], [0.1, 0.4, 0.4 + 1e-9, 0.0], T) == 1
+    assert weakest_brick([1.0, 1.0, 0.3], [0.0, 0.0, 0.1], T) == 0  # two floating bricks: the first
+    assert weakest_brick([0.3, 0.5 + 2e-6, 0.5], [0.1, 0.0, 0.4], T) == 1  # beyond the tie: the score decides
