@@ -534,26 +534,27 @@ def _score_files(
         for c0 in range(0, len(todo), chunk):
             part = todo[c0: c0 + chunk]
             t0 = time.perf_counter()
-            loaded, errs, left = [], [], {}
+            loaded, errs = [], []
             for p in part:
-                report: dict = {}
+                report: dict = {}  # LDraw parts left out (skip_unsupported)
                 try:
-                    loaded.append((p, rows.load_source(p, library, column, id_column, skip_unsupported, report)))
+                    lay = rows.load_source(p, library, column, id_column, skip_unsupported, report)
                 except Exception as exc:  # a bad layout is reported, the run goes on
                     errs.append(dict(rows.result_fields(p), error=error_message(str(p), exc)))
+                    continue
+                loaded.append((p, lay, report))
                 if report:
-                    left[str(p)] = report
                     bar.write(f"warning: {p}: left out, {unsupported_message(report)}", sys.stderr)
             st.load_s += time.perf_counter() - t0
             if errs:
                 emit(errs)
                 st.errors += len(errs)
                 bar.advance(len(errs))
-            for part_done in iter_analyses([lay for _, lay in loaded], solver, params, opts, batch, devices,
+            for part_done in iter_analyses([lay for _, lay, _ in loaded], solver, params, opts, batch, devices,
                                            exact_method, exact_scale, first_cap, method, stats=st, jobs=jobs):
                 recs = []
                 for i, a in part_done:
-                    p, lay = loaded[i]
+                    p, lay, report = loaded[i]
                     if isinstance(a, Exception):
                         recs.append(dict(rows.result_fields(p), error=error_message(str(p), a)))
                         st.errors += 1
@@ -561,8 +562,8 @@ def _score_files(
                     if write_scores and isinstance(p, str) and os.path.isdir(p) and a.scores:
                         _write_score_grid(p, lay, a.scores)
                     rec = dict(a.to_json(), **rows.result_fields(p))
-                    if str(p) in left:
-                        rec["left_out"] = {k: c for k, (c, _) in left[str(p)].items()}
+                    if report:
+                        rec["left_out"] = {k: c for k, (c, _) in report.items()}
                         st.left_out += 1
                     if solver != "exact":
                         rec["iters"] = a.iters
