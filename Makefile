@@ -20,7 +20,7 @@ demo: $(BIN)/stablelego
 	@echo "heat maps in out/*.png and out/*.html (3D), exact-solver results in out/exact.jsonl"
 
 test: $(BIN)/stablelego
-	$(BIN)/python -m pytest -q -n auto
+	$(BIN)/python -m pytest -q -n auto --dist loadfile
 
 $(VENV)/.docs: $(BIN)/stablelego
 	$(BIN)/pip install -q -e '.[docs]'

@@ -13,7 +13,9 @@ from stablelego_jax.train import net
 from stablelego_jax.train import train as T
 from stablelego_jax.train.shapes import procedural_shape
 
-pytestmark = pytest.mark.usefixtures("x64")  # the tests call the jitted training step themselves
+# the tests call the jitted training step themselves (make test runs each
+# test file on one xdist worker, so the compiled step is shared)
+pytestmark = pytest.mark.usefixtures("x64")
 
 TINY = {"n_procedural": 6, "mesh_dir": None, "steps": 4, "batch": 2, "n_pad": 16, "m_pad": 512, "p_pad": 32,
         "competitors": 4, "random_competitors": 2, "checkpoint_every": 2, "eval_every": 100, "eval_train": 2,

@@ -289,54 +289,100 @@ def bin_weight(cfg: dict, step: int) -> float:
     return cfg["bin_weight"] + (cfg["bin_weight_final"] - cfg["bin_weight"]) * step / max(cfg["steps"], 1)
 
 
+# the config keys that shape the compiled graphs (the network and the loss);
+# everything else, grad_floor and brick_weight included, enters as a value,
+# so a sweep over those reuses one compilation
+_GRAPH_KEYS = ("dilations", "logit_bound", "temperature", "under_weight", "share_scope", "share_floor",
+               "share_power")
+_OPT_KEYS = ("lr", "lr_schedule", "steps", "lr_final_frac", "clip")
+
+
 def make_fns(cfg: dict):
-    """(probs_fn, step_fn, opt, terms, grad_fn): jit-compiled forward pass
-    and training step, the optimizer, the loss terms (fidelity, binarize,
-    stability, converged fraction) and ``grad_fn(params, lam, bw, *batch)``
-    -> (loss, terms, grads); cached per config (one compilation per config
-    and process)."""
-    return _make_fns(json.dumps(cfg, sort_keys=True))
+    """(probs_fn, step_fn, opt, terms, grad_fn): jit-compiled forward pass,
+    training step ``step_fn(params, opt_state, lam, bw, x, valid, target,
+    sub)``, the optimizer, the loss terms ``terms(params, x, valid, target,
+    *sub)`` -> (fidelity, binarize, stability, converged fraction) and
+    ``grad_fn(params, lam, bw, *batch)`` -> (loss, terms, grads). Compiled
+    once per process for all configs that share the network and loss shape
+    (``_GRAPH_KEYS``); ``grad_floor`` and ``brick_weight`` are passed as
+    values."""
+    graph = _model_fns(json.dumps({k: cfg[k] for k in _GRAPH_KEYS}, sort_keys=True))
+    opt, update_fn = _optimizer(json.dumps({k: cfg[k] for k in _OPT_KEYS}, sort_keys=True))
+    probs_fn, terms_c, grad_c = graph
+    knobs = (np.float64(cfg["grad_floor"]), np.float64(cfg["brick_weight"]))
+
+    def terms(params, x, valid, target, fi, mask, inc, prob):
+        return terms_c(params, *knobs, x, valid, target, fi, mask, inc, prob)
+
+    def grad_fn(params, lam, bw, *args):
+        return grad_c(params, lam, bw, *knobs, *args)
+
+    def step_fn(params, opt_state, lam, bw, x, valid, target, sub: Subset):
+        loss, aux, g = grad_fn(params, lam, bw, x, valid, target, *sub)
+        params, opt_state = update_fn(params, opt_state, g)
+        return params, opt_state, loss, aux
+
+    return probs_fn, step_fn, opt, terms, grad_fn
 
 
-@functools.lru_cache(maxsize=8)
-def _make_fns(key: str):
-    cfg = json.loads(key)
-    import jax
-    import jax.numpy as jnp
-
+def _optax():
     try:
         import optax
     except ImportError:
         raise ConfigError("training needs optax: pip install 'stablelego-jax[train]'") from None
+    return optax
 
-    from ..loss import LossOptions, soft_report
-    from . import net
 
-    dil = tuple(cfg["dilations"])
-    opts = LossOptions(temperature=cfg["temperature"])
+@functools.lru_cache(maxsize=8)
+def _optimizer(key: str):
+    """(optax optimizer, jitted update) for the optimizer keys in ``key``."""
+    cfg = json.loads(key)
+    import jax
+
+    optax = _optax()
     lr = cfg["lr"] if cfg["lr_schedule"] == "constant" else optax.cosine_decay_schedule(
         cfg["lr"], max(cfg["steps"], 1), alpha=cfg["lr_final_frac"])
     opt = optax.chain(optax.clip_by_global_norm(cfg["clip"]), optax.adam(lr))
 
     @jax.jit
+    def update_fn(params, opt_state, g):
+        upd, opt_state = opt.update(g, opt_state, params)
+        return optax.apply_updates(params, upd), opt_state
+
+    return opt, update_fn
+
+
+@functools.lru_cache(maxsize=8)
+def _model_fns(key: str):
+    """(probs_fn, terms, grad_fn) jitted for the graph keys in ``key``; terms
+    and grad_fn take (grad_floor, brick_weight) after params / lam, bw."""
+    cfg = json.loads(key)
+    import jax
+    import jax.numpy as jnp
+
+    _optax()  # ConfigError before anything is compiled or written
+    from ..loss import LossOptions, soft_report
+    from . import net
+
+    dil = tuple(cfg["dilations"])
+    opts = LossOptions(temperature=cfg["temperature"])
+
+    @jax.jit
     def probs_fn(params, x, valid):
         return net.probabilities(params, x, valid, dil, cfg["logit_bound"])
 
-    def terms(params, x, valid, target, fi, mask, inc, prob):
+    def terms(params, floor, brick_weight, x, valid, target, fi, mask, inc, prob):
         logits = net.logits(params, x, dil, cfg["logit_bound"])
         p = jnp.where(valid, jax.nn.sigmoid(logits), 0.0)  # = net.probabilities, sharing the logits
-        if cfg["grad_floor"] > 0:
-            # the same values, with d p / d logit = p (1 - p) + grad_floor in the
-            # fidelity and stability terms: a saturated placement can still be moved
-            p_g = p + cfg["grad_floor"] * jnp.where(valid, logits - jax.lax.stop_gradient(logits), 0.0)
-        else:
-            p_g = p
+        # the same values, with d p / d logit = p (1 - p) + grad_floor in the
+        # fidelity and stability terms: a saturated placement can still be moved
+        p_g = p + floor * jnp.where(valid, logits - jax.lax.stop_gradient(logits), 0.0)
         B = p.shape[0]
         cov = net.coverage(p_g)
         err = jnp.where(cov < 1.0, cfg["under_weight"], 1.0) * (cov - 1.0) ** 2
         fid = jnp.where(target, err, 0.0).reshape(B, -1).sum(1).mean()
-        if cfg["brick_weight"] > 0:  # economy: each placement's probability costs brick_weight
-            fid = fid + cfg["brick_weight"] * p_g.reshape(B, -1).sum(1).mean()
+        # economy: each placement's probability costs brick_weight
+        fid = fid + brick_weight * p_g.reshape(B, -1).sum(1).mean()
         binar = (p * (1.0 - p)).reshape(B, -1).sum(1).mean()
         if cfg["share_scope"] == "subset":
             ps = jnp.take_along_axis(p_g.reshape(B, -1), fi, axis=1) * mask
@@ -349,26 +395,16 @@ def _make_fns(key: str):
         stab = jnp.where(rep.converged, rep.brick_loss.sum(1), 0.0).mean()
         return fid, binar, stab, rep.converged.mean()
 
-    def total(params, lam, bw, *args):
-        fid, binar, stab, conv = terms(params, *args)
+    def total(params, lam, bw, floor, brick_weight, *args):
+        fid, binar, stab, conv = terms(params, floor, brick_weight, *args)
         return fid + bw * binar + lam * stab, (fid, binar, stab, conv)
 
     @jax.jit
-    def grad_fn(params, lam, bw, *args):
-        (loss, aux), g = jax.value_and_grad(total, has_aux=True)(params, lam, bw, *args)
+    def grad_fn(params, lam, bw, floor, brick_weight, *args):
+        (loss, aux), g = jax.value_and_grad(total, has_aux=True)(params, lam, bw, floor, brick_weight, *args)
         return loss, aux, g
 
-    @jax.jit
-    def update_fn(params, opt_state, g):
-        upd, opt_state = opt.update(g, opt_state, params)
-        return optax.apply_updates(params, upd), opt_state
-
-    def step_fn(params, opt_state, lam, bw, x, valid, target, sub: Subset):
-        loss, aux, g = grad_fn(params, lam, bw, x, valid, target, *sub)
-        params, opt_state = update_fn(params, opt_state, g)
-        return params, opt_state, loss, aux
-
-    return probs_fn, step_fn, opt, terms, grad_fn
+    return probs_fn, jax.jit(terms), grad_fn
 
 
 # --------------------------------------------------------------------------
