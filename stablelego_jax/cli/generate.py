@@ -29,6 +29,9 @@ def add_parser(sub) -> None:
     g.add_argument("--seed", type=int, default=0, help="tie-break seed of the brick merge (default 0)")
     g.add_argument("--solver", choices=["exact", "jax"], default="exact",
                    help="stability solver for stability_score.npy (default exact: HiGHS, fastest on big layouts)")
+    g.add_argument("--stabilize", action="store_true",
+                   help="search for a cover of the same voxels that stands (stablelego stabilize, default budget) "
+                        "where the merge falls; the object keeps the best cover found either way")
     g.add_argument("--no-vis", action="store_true", help="skip vis.png")
     g.add_argument("--overwrite", action="store_true", help="replace existing object folders")
     g.add_argument("--json", action="store_true", help="one JSON object per mesh and line on stdout")
@@ -63,6 +66,11 @@ def cmd_generate(args) -> int:
     if not 2 <= args.grid <= MAX_GRID:  # checked before anything is allocated
         print(f"error: --grid must be between 2 and {MAX_GRID}, got {args.grid}", file=sys.stderr)
         return 2
+    stab = None
+    if args.stabilize:
+        from ..generate.stabilize import StabilizeOptions
+
+        stab = StabilizeOptions()
     bar = Progress(len(args.meshes), enabled=not args.quiet)
     used: set = set()
     failed = 0
@@ -73,7 +81,7 @@ def cmd_generate(args) -> int:
         try:
             r = generate_from_mesh(mesh, path, grid=args.grid, up=args.up, fill=args.fill, bricks=bricks,
                                    seed=args.seed, solver=args.solver, vis=not args.no_vis,
-                                   overwrite=args.overwrite)
+                                   overwrite=args.overwrite, stabilize=stab)
         except Exception as exc:  # one bad mesh must not stop the others
             failed += 1
             text = str(exc) if isinstance(exc, (ValueError, OSError)) else f"{type(exc).__name__}: {exc}"

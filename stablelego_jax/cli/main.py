@@ -2,7 +2,7 @@
 
 ``stablelego analyze FILE...``, ``score INPUT... --out RESULTS``,
 ``generate MESH... --out DIR``, ``export LAYOUT``, ``repair IN --out OUT``,
-``sequence LAYOUT``,
+``sequence LAYOUT``, ``stabilize IN --out OUT``,
 ``train``, ``evaluate``. Building the parser imports no JAX; each command
 imports what it needs when it runs.
 """
@@ -11,7 +11,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from . import analyze, export, generate, repair, score, sequence, train
+from . import analyze, export, generate, repair, score, sequence, stabilize, train
 from .common import load_library
 
 __all__ = ["build_parser", "main"]
@@ -28,6 +28,7 @@ def build_parser() -> argparse.ArgumentParser:
     generate.add_parser(sub)
     export.add_parser(sub)
     repair.add_parser(sub)
+    stabilize.add_parser(sub)
     sequence.add_parser(sub)
     train.add_parsers(sub)
     return p

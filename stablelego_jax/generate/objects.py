@@ -18,6 +18,8 @@ from ..analysis import Analysis, analyze_layout
 from ..formats.dataset import write_object
 from ..layout import Layout
 from .mesh import voxelize
+from .stabilize import StabilizeOptions
+from .stabilize import stabilize as stabilize_cover
 from .voxels import DEFAULT_BRICKS, merge_voxels, parse_bricks
 
 __all__ = ["GeneratedObject", "analyze_and_write", "generate_from_voxels", "generate_from_mesh"]
@@ -78,13 +80,24 @@ def generate_from_voxels(
     meta: Mapping | None = None,
     overwrite: bool = False,
     source: str = "<voxels>",
+    stabilize: StabilizeOptions | None = None,
 ) -> GeneratedObject:
-    """Voxels -> bricks (:func:`merge_voxels`) -> analysis -> object folder."""
+    """Voxels -> bricks (:func:`merge_voxels`; with ``stabilize``, a cover of
+    the same cells that stands where one is found,
+    :func:`~stablelego_jax.generate.stabilize.stabilize`) -> analysis ->
+    object folder."""
     t0 = time.perf_counter()
     vox = np.asarray(vox).astype(bool)
     bricks = parse_bricks(bricks)
-    layout = merge_voxels(vox, seed=seed, bricks=bricks, source=source)
     info = {"seed": int(seed), "bricks": ",".join(f"{a}x{b}" for a, b in bricks)}
+    if stabilize is None:
+        layout = merge_voxels(vox, seed=seed, bricks=bricks, source=source)
+    else:
+        if os.path.lexists(path) and not overwrite:  # before the search
+            raise FileExistsError(f"{path}: already exists (use overwrite to replace it)")
+        r = stabilize_cover(vox, dataclasses.replace(stabilize, bricks=bricks), source=source)
+        layout = r.layout
+        info["stabilize"] = {k: v for k, v in r.to_json().items() if k != "bricks"}
     info.update(meta or {})
     a = analyze_and_write(path, layout, vox=vox, solver=solver, vis=vis, meta=info, overwrite=overwrite)
     s = a.scores
@@ -108,6 +121,7 @@ def generate_from_mesh(
     solver: str = "exact",
     vis: bool = True,
     overwrite: bool = False,
+    stabilize: StabilizeOptions | None = None,
 ) -> GeneratedObject:
     """Mesh file -> voxels (:func:`~stablelego_jax.generate.mesh.voxelize`) -> bricks ->
     analysis -> dataset object folder ``path``.
@@ -123,6 +137,6 @@ def generate_from_mesh(
     meta = {"source": os.fspath(mesh_path), "up": v.up, "fill": v.fill, "watertight": v.watertight,
             "pitch": v.pitch, "n_faces": v.n_faces}
     out = generate_from_voxels(v.vox, path, bricks=bricks, seed=seed, solver=solver, vis=vis,
-                               meta=meta, overwrite=overwrite, source=os.fspath(mesh_path))
+                               meta=meta, overwrite=overwrite, source=os.fspath(mesh_path), stabilize=stabilize)
     out.time_s = time.perf_counter() - t0
     return out

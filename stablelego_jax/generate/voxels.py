@@ -24,6 +24,8 @@ __all__ = [
     "random_voxel_shape",
     "ground",
     "floating_bricks",
+    "oriented",
+    "placements_in",
 ]
 
 # (short, long) footprints, largest first (2-wide before 1-wide on equal area).
@@ -95,6 +97,33 @@ def _wsum(a: np.ndarray, sx: int, sy: int) -> np.ndarray:
     c = np.zeros((X + 1, Y + 1), np.int64)
     c[1:, 1:] = a.astype(np.int64).cumsum(0).cumsum(1)
     return c[sx:, sy:] - c[:-sx, sy:] - c[sx:, :-sy] + c[:-sx, :-sy]
+
+
+def oriented(bricks: Sequence[tuple[int, int]] = DEFAULT_BRICKS) -> tuple[tuple[int, int], ...]:
+    """Footprints (sx, sy) of ``bricks`` in both orientations, largest first."""
+    out = []
+    for a, b in parse_bricks(bricks):
+        for t in ((a, b), (b, a)):
+            if t not in out:
+                out.append(t)
+    return tuple(out)
+
+
+def placements_in(mask: np.ndarray, types: Sequence[tuple[int, int]]) -> tuple[np.ndarray, np.ndarray]:
+    """Every placement of an oriented footprint of ``types`` whose cells all
+    lie in ``mask`` (X, Y, Z) bool: (pos (k, 3) corner cells, size (k, 2)),
+    grouped by type in the order given, then by layer, x, y."""
+    mask = np.asarray(mask, bool)
+    pos, size = [], []
+    for sx, sy in types:
+        for z in np.nonzero(mask.any(axis=(0, 1)))[0]:
+            ok = np.argwhere(_wsum(mask[:, :, z], sx, sy) == sx * sy)
+            if len(ok):
+                pos.append(np.column_stack([ok, np.full(len(ok), z)]))
+                size.append(np.tile([sx, sy], (len(ok), 1)))
+    if not pos:
+        return np.zeros((0, 3), np.int64), np.zeros((0, 2), np.int64)
+    return np.concatenate(pos).astype(np.int64), np.concatenate(size).astype(np.int64)
 
 
 def _joint_count(below: np.ndarray, sx: int, sy: int, shape) -> np.ndarray:

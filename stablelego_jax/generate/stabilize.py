@@ -1,0 +1,421 @@
+"""A stable brick layout for a voxel shape: same cells, library bricks, stands by the exact solver.
+
+:func:`stabilize` (``stablelego stabilize``) searches over exact covers of
+one voxel shape (IoU 1, no overlaps, library bricks only):
+
+1. the heuristic merge (:func:`~stablelego_jax.generate.voxels.merge_voxels`)
+   with ``seeds`` tie-break seeds; the first cover that stands by the exact
+   solver is the answer, otherwise the best one is the start;
+2. rounds of re-merging around the failing bricks: the *region* (the cells
+   of the bricks within ``reach`` studs of a failing brick, in its layer and
+   the layers just below and above) is covered anew while every other brick
+   stays, by
+
+   * the **gradient move**: every placement of a library brick inside the
+     region gets a probability ``p = sigmoid(theta)`` (warm start: the
+     current bricks likely, the rest not); the bricks outside the region
+     have weight 1, the region's placements their share of their most
+     contested cell (:func:`~stablelego_jax.train.net.subset_shares`), and
+     ``theta`` descends (Adam) shape fidelity ``sum_cells (coverage - 1)^2``
+     + ``lam`` x the stability loss of the whole layout
+     (:func:`~stablelego_jax.loss.stability_loss` on the layered soft
+     interior point, on the size ladder); the probabilities are decoded to an
+     exact cover of the region (most probable first, the rest filled with the
+     largest bricks that fit);
+   * **random moves**: randomised greedy covers of the region that prefer
+     long bricks across the joints of the layers below and above;
+
+   the random covers come first in a round and the gradient move when
+   they find nothing better; each candidate layout is verified by the exact
+   solver and kept when it fails less (fewer failing bricks, then a smaller overload
+   :func:`~stablelego_jax.design.repair.exact_loss`);
+3. with ``allow_support``: if no cover stands within the budget, the fewest
+   support bricks outside the shape (:func:`~stablelego_jax.design.repair.repair`).
+
+Coordinates: cell (x, y, z) of the voxel grid is stud cell (x, y) of layer z.
+"""
+from __future__ import annotations
+
+import dataclasses
+import time
+from typing import Callable, Sequence
+
+import numpy as np
+
+from ..analysis import Analysis, analyze_layout
+from ..blas import one_blas_thread
+from ..design.repair import RepairOptions, exact_loss, repair
+from ..layout import Layout, brick_layout, cells_of, table_i_bricks
+from ..model import Params
+from ..runtime import x64
+from .voxels import DEFAULT_BRICKS, merge_voxels, oriented, placements_in
+
+__all__ = ["StabilizeOptions", "StabilizeResult", "stabilize", "layout_voxels", "merit", "recover_region",
+           "ungroundable_cells"]
+
+
+@dataclasses.dataclass(frozen=True)
+class StabilizeOptions:
+    """Budget and moves of :func:`stabilize`.
+
+    seeds: heuristic tie-break seeds tried first; rounds: re-merge rounds at
+    most; time_s: wall-clock budget (s; checked between exact solves);
+    reach: studs around a failing brick whose bricks are re-merged;
+    random_moves: random covers tried per round; gradient: use the gradient
+    move; steps / lr / lam: its Adam steps, step size and stability weight;
+    allow_support: add support bricks outside the shape when no cover
+    stands; bricks: the library footprints (must hold 1x1)."""
+
+    seeds: int = 20
+    rounds: int = 40
+    time_s: float = 600.0
+    reach: int = 2
+    random_moves: int = 6
+    gradient: bool = True
+    steps: int = 12
+    lr: float = 0.5
+    lam: float = 20.0
+    allow_support: bool = False
+    bricks: tuple = DEFAULT_BRICKS
+    params: Params = Params()
+
+
+@dataclasses.dataclass
+class StabilizeResult:
+    """layout: the best cover found (stands iff ``stable``); start: the
+    heuristic merge with seed 0; method: which step found it ("heuristic",
+    "seed", "gradient", "random", "support" or "none"); bricks_changed: bricks
+    of ``layout`` not in ``start`` (same cell and size); exact_calls /
+    soft_calls: solver calls; failing: failing bricks of ``layout``;
+    reason: why it does not stand, when it does not."""
+
+    layout: Layout
+    start: Layout
+    stable: bool
+    method: str
+    bricks_changed: int
+    exact_calls: int
+    soft_calls: int
+    rounds: int
+    failing: int
+    support_bricks: int
+    time_s: float
+    reason: str = ""
+
+    def to_json(self) -> dict:
+        return {"stable": self.stable, "method": self.method, "bricks": self.layout.n,
+                "bricks_changed": self.bricks_changed, "support_bricks": self.support_bricks,
+                "failing": self.failing, "exact_calls": self.exact_calls, "soft_calls": self.soft_calls,
+                "rounds": self.rounds, "time_s": round(self.time_s, 3), "reason": self.reason}
+
+
+def layout_voxels(layout: Layout) -> tuple[np.ndarray, np.ndarray]:
+    """(vox (X, Y, Z) bool of the cells a grid layout covers, offset (3,)
+    of cell [0, 0, 0] in the layout's coordinates)."""
+    cells, _ = cells_of(layout.pos, layout.size)
+    lo = cells.min(axis=0)
+    ext = cells.max(axis=0) - lo + 1
+    vox = np.zeros(tuple(ext.tolist()), bool)
+    vox[tuple((cells - lo).T)] = True
+    return vox, lo
+
+
+def ungroundable_cells(vox: np.ndarray) -> np.ndarray:
+    """(X, Y, Z) bool: cells that no cover can join to the ground: their
+    part of the shape (cells linked by a shared face: side by side in one
+    layer, which one brick can join, or one above the other) reaches no cell of
+    layer 0. Bricks on them float in every cover."""
+    from scipy import ndimage
+
+    vox = np.asarray(vox, bool)
+    lab, n = ndimage.label(vox)  # 6-connectivity: the face neighbours
+    grounded = np.unique(lab[:, :, 0][vox[:, :, 0]])
+    return vox & ~np.isin(lab, grounded)
+
+
+def merit(a: Analysis) -> tuple[int, float]:
+    """(failing bricks, exact overload in T): lower is better; (0, 0) stands."""
+    return int(sum(1 for v in a.scores.values() if v >= 1.0)), exact_loss(a)
+
+
+def _failing(a: Analysis) -> np.ndarray:
+    return np.array([i for i, k in enumerate(a.layout.keys) if a.scores[k] >= 1.0], np.int64)
+
+
+def _region(layout: Layout, failing: np.ndarray, reach: int) -> np.ndarray:
+    """(n,) bool: bricks to re-merge: those within ``reach`` studs (x, y) of
+    a failing brick's footprint in its layer and the layers just above and
+    below."""
+    pos, size = layout.pos, layout.size
+    lo, hi = pos[:, :2], pos[:, :2] + size
+    take = np.zeros(layout.n, bool)
+    for f in failing:
+        near = ((lo[:, 0] < hi[f, 0] + reach) & (hi[:, 0] > lo[f, 0] - reach)
+                & (lo[:, 1] < hi[f, 1] + reach) & (hi[:, 1] > lo[f, 1] - reach)
+                & (np.abs(pos[:, 2] - pos[f, 2]) <= 1))
+        take |= near
+    return take
+
+
+def _exact_cover(mask: np.ndarray, pos: np.ndarray, size: np.ndarray, order: np.ndarray,
+                 types: Sequence[tuple[int, int]]) -> tuple[np.ndarray, np.ndarray]:
+    """Placements taken greedily in ``order`` where all their cells of
+    ``mask`` are still free, then the cells left filled with the largest
+    footprints of ``types`` that fit (1x1 last): an exact cover of ``mask``."""
+    free = np.asarray(mask, bool).copy()
+    out_p, out_s = [], []
+
+    def take(p, s):
+        (x, y, z), (sx, sy) = p, s
+        win = free[x:x + sx, y:y + sy, z]
+        if win.shape == (sx, sy) and win.all():
+            free[x:x + sx, y:y + sy, z] = False
+            out_p.append((x, y, z))
+            out_s.append((sx, sy))
+
+    for i in order:
+        take(pos[i].tolist(), size[i].tolist())
+    if free.any():
+        fp, fs = placements_in(free, types)  # grouped by type, largest first
+        for p, s in zip(fp.tolist(), fs.tolist()):
+            take(p, s)
+    assert not free.any(), "1x1 must be in the brick set"
+    return np.asarray(out_p, np.int64).reshape(-1, 3), np.asarray(out_s, np.int64).reshape(-1, 2)
+
+
+def recover_region(layout: Layout, region: np.ndarray, rank: np.ndarray, pos: np.ndarray, size: np.ndarray,
+                   types) -> Layout:
+    """``layout`` with the bricks of ``region`` (n,) bool replaced by an exact
+    cover of their cells from placements (pos, size) taken in ``rank``
+    order (see :func:`_exact_cover`)."""
+    cells, owner = cells_of(layout.pos, layout.size)
+    sel = region[owner]
+    lo = cells.min(axis=0)
+    ext = cells.max(axis=0) - lo + 1
+    mask = np.zeros(tuple(ext.tolist()), bool)
+    mask[tuple((cells[sel] - lo).T)] = True
+    p, s = _exact_cover(mask, pos - lo, size, rank, types)
+    keep = ~region
+    return brick_layout(np.concatenate([layout.pos[keep], p + lo]), np.concatenate([layout.size[keep], s]),
+                        source=layout.source)
+
+
+def _region_placements(layout: Layout, region: np.ndarray, types):
+    cells, owner = cells_of(layout.pos, layout.size)
+    sel = region[owner]
+    lo = cells.min(axis=0)
+    ext = cells.max(axis=0) - lo + 1
+    mask = np.zeros(tuple(ext.tolist()), bool)
+    mask[tuple((cells[sel] - lo).T)] = True
+    pos, size = placements_in(mask, types)
+    return pos + lo, size
+
+
+def _random_rank(layout: Layout, region: np.ndarray, pos: np.ndarray, size: np.ndarray,
+                 rng: np.random.Generator) -> np.ndarray:
+    """A random priority over the region's placements: area times a random
+    factor, doubled for placements that span a joint of the fixed layer
+    below or above (a long brick across two bricks ties them together)."""
+    keep = ~region
+    owner = {}
+    c, o = cells_of(layout.pos[keep], layout.size[keep])
+    for cell, b in zip(map(tuple, c.tolist()), o.tolist()):
+        owner[cell] = b
+    area = size[:, 0] * size[:, 1]
+    bonus = np.ones(len(pos))
+    for i, ((x, y, z), (sx, sy)) in enumerate(zip(pos.tolist(), size.tolist())):
+        for dz in (-1, 1):
+            below = {owner.get((x + a, y + b, z + dz)) for a in range(sx) for b in range(sy)} - {None}
+            if len(below) >= 2:
+                bonus[i] *= 2.0
+    key = area * bonus * rng.random(len(pos)) ** 0.5
+    return np.argsort(-key, kind="stable")
+
+
+def _same_bricks(a: Layout, b: Layout) -> int:
+    """Bricks of ``a`` that are not in ``b`` (same corner and size)."""
+    sb = set(zip(map(tuple, b.pos.tolist()), map(tuple, b.size.tolist())))
+    return sum(1 for p, s in zip(map(tuple, a.pos.tolist()), map(tuple, a.size.tolist())) if (p, s) not in sb)
+
+
+class _Gradient:
+    """The gradient move's optimiser: jitted (value, grad) of fidelity + lam
+    x stability over the padded soft problem, compiled once per ladder shape."""
+
+    def __init__(self, opts: StabilizeOptions):
+        import jax
+        import jax.numpy as jnp
+
+        from ..loss import LossOptions, stability_loss
+        from ..soft import SoftProblem
+        from ..train.net import subset_shares
+
+        lo = LossOptions(params=opts.params)
+        self.opts = opts
+        self.fns = {}
+
+        def make(fields):
+            def f(theta, fixed, inc, lam, *arrays):
+                prob = SoftProblem(**dict(zip(fields, arrays)))
+                p = jax.nn.sigmoid(theta)
+                ps = jnp.where(fixed | (inc.sum(0) == 0), 0.0, p)
+                share = subset_shares(ps[None], inc[None])[0]
+                w = jnp.where(fixed, 1.0, share)
+                cov = inc @ ps
+                real = inc.sum(1) > 0
+                fid = jnp.where(real, (cov - 1.0) ** 2, 0.0).sum()
+                return fid + lam * stability_loss(w, None, prob, opts=lo)
+
+            return jax.jit(jax.value_and_grad(f))
+
+        self.make = make
+
+    def run(self, layout: Layout, region: np.ndarray, pos: np.ndarray, size: np.ndarray) -> np.ndarray:
+        """Probabilities (k,) of the region's placements after ``steps`` Adam steps."""
+        import jax
+
+        from ..soft import compile_placements
+        from ..solvers.problem import plan_soft
+
+        keep = ~region
+        fpos, fsize = layout.pos[keep], layout.size[keep]
+        allpos = np.concatenate([fpos, pos])
+        allsize = np.concatenate([fsize, size])
+        mass = table_i_bricks(allsize)[0]
+        prob = plan_soft(compile_placements(allpos, allsize, mass, self.opts.params))
+        n_pad = prob.mass.shape[0]
+        nf, k = len(fpos), len(pos)
+        cells, owner = cells_of(pos, size)
+        ucells, cid = np.unique(cells, axis=0, return_inverse=True)
+        c_pad = -(-len(ucells) // 64) * 64
+        inc = np.zeros((c_pad, n_pad))
+        inc[np.ravel(cid), nf + owner] = 1.0
+        fixed = np.zeros(n_pad, bool)
+        fixed[:nf] = True
+        cur = set(zip(map(tuple, layout.pos[region].tolist()), map(tuple, layout.size[region].tolist())))
+        theta = np.full(n_pad, -3.0)
+        for i, (p, s) in enumerate(zip(map(tuple, pos.tolist()), map(tuple, size.tolist()))):
+            if (p, s) in cur:
+                theta[nf + i] = 2.0
+        fields = tuple(f for f in prob._fields if getattr(prob, f) is not None)
+        key = (fields, n_pad, c_pad) + tuple(np.shape(getattr(prob, f)) for f in fields)
+        if key not in self.fns:
+            self.fns[key] = self.make(fields)
+        fn = self.fns[key]
+        arrays = tuple(getattr(prob, f) for f in fields)
+        m = np.zeros(n_pad)
+        v = np.zeros(n_pad)
+        b1, b2, lr = 0.9, 0.999, self.opts.lr
+        with one_blas_thread():
+            for t in range(1, self.opts.steps + 1):
+                _, g = jax.device_get(fn(theta, fixed, inc, np.float64(self.opts.lam), *arrays))
+                g = np.nan_to_num(np.asarray(g))
+                m = b1 * m + (1 - b1) * g
+                v = b2 * v + (1 - b2) * g * g
+                theta = theta - lr * (m / (1 - b1 ** t)) / (np.sqrt(v / (1 - b2 ** t)) + 1e-8)
+        return 1.0 / (1.0 + np.exp(-theta[nf:nf + k]))
+
+
+@x64
+def stabilize(vox: np.ndarray, opts: StabilizeOptions = StabilizeOptions(), source: str = "<voxels>",
+              progress: Callable[[str], None] | None = None) -> StabilizeResult:
+    """A stable exact cover of ``vox`` (X, Y, Z) bool (see the module
+    docstring); brick coordinates are the grid's indices."""
+    t0 = time.perf_counter()
+    say = progress or (lambda s: None)
+    types = oriented(opts.bricks)
+    calls = {"exact": 0, "soft": 0}
+
+    def check(layout: Layout) -> Analysis:
+        calls["exact"] += 1
+        return analyze_layout(layout, solver="exact", params=opts.params)
+
+    def out(layout, a, method, rounds, support=0, reason=""):
+        return StabilizeResult(layout=layout, start=start, stable=bool(a.stable), method=method,
+                               bricks_changed=_same_bricks(layout, start), exact_calls=calls["exact"],
+                               soft_calls=calls["soft"], rounds=rounds, failing=merit(a)[0],
+                               support_bricks=support, time_s=time.perf_counter() - t0, reason=reason)
+
+    start = merge_voxels(vox, seed=0, bricks=opts.bricks, source=source)
+    a = check(start)
+    best, best_a, how = start, a, "heuristic"
+    say(f"heuristic merge: {start.n} bricks, {merit(a)[0]} failing")
+    if a.stable:
+        return out(start, a, "heuristic", 0)
+    for seed in range(1, opts.seeds):
+        if time.perf_counter() - t0 > opts.time_s:
+            break
+        lay = merge_voxels(vox, seed=seed, bricks=opts.bricks, source=source)
+        a = check(lay)
+        if merit(a) < merit(best_a):
+            best, best_a, how = lay, a, "seed"
+            say(f"seed {seed}: {merit(a)[0]} failing")
+        if a.stable:
+            return out(lay, a, "seed", 0)
+
+    lost = ungroundable_cells(vox)
+    if lost.any():
+        say(f"{int(lost.sum())} cells touch nothing that leads to the ground: no cover can stand")
+    rng = np.random.default_rng(0)
+    grad = _Gradient(opts) if opts.gradient else None
+    rounds = 0
+    stuck = 0
+    while rounds < opts.rounds and time.perf_counter() - t0 < opts.time_s and not best_a.stable and not lost.any():
+        rounds += 1
+        base = best  # every move of this round re-covers the region of the round's start
+        failing = _failing(best_a)
+        # grow the region when the last rounds found nothing
+        region = _region(base, failing, opts.reach + stuck)
+        pos, size = _region_placements(base, region, types)
+        improved = False
+
+        def attempt(name, order):
+            nonlocal best, best_a, how
+            lay = recover_region(base, region, order, pos, size, types)
+            a = check(lay)
+            if merit(a) < merit(best_a):
+                best, best_a, how = lay, a, name
+                return True
+            return False
+
+        # cheap random covers first; the gradient move (a soft solve per
+        # step) when they find nothing better
+        for _ in range(opts.random_moves):
+            if time.perf_counter() - t0 > opts.time_s or best_a.stable:
+                break
+            improved |= attempt("random", _random_rank(base, region, pos, size, rng))
+        if not improved and grad is not None and time.perf_counter() - t0 < opts.time_s:
+            try:
+                p = grad.run(base, region, pos, size)
+                calls["soft"] += opts.steps
+                improved = attempt("gradient", np.argsort(-p, kind="stable"))
+            except Exception as exc:  # noqa: BLE001 - the random moves go on
+                say(f"gradient move failed ({type(exc).__name__}: {exc}); random moves only")
+                grad = None
+        stuck = 0 if improved else min(stuck + 1, 4)
+        say(f"round {rounds}: region {int(region.sum())} bricks, {merit(best_a)[0]} failing"
+            f" ({how}), {calls['exact']} exact solves")
+    if best_a.stable:
+        return out(best, best_a, how, rounds)
+    reason = (f"{int(lost.sum())} cells of the shape touch nothing that leads to the ground (no cover can "
+              "join them to it)") if lost.any() else _reason(best_a)
+    if opts.allow_support:
+        say("no stable cover found; adding support bricks outside the shape")
+        r = repair(best, RepairOptions(params=opts.params))
+        calls["exact"] += r.exact_calls
+        calls["soft"] += r.soft_calls
+        if r.stable:
+            return out(r.layout, r.after, "support", rounds, support=r.layout.n - best.n)
+    return out(best, best_a, "none", rounds, reason=reason)
+
+
+def _reason(a: Analysis) -> str:
+    """Why the best cover fails, in words."""
+    from ..score import floating_bricks
+
+    fl = int(np.asarray(floating_bricks(a.model))[: a.layout.n].sum())
+    n_fail = merit(a)[0]
+    if fl:
+        return (f"{fl} of {n_fail} failing bricks have no chain of knob connections to the ground in the "
+                "best cover found")
+    return f"{n_fail} bricks exceed the knob capacity or cannot balance in the best cover found"
