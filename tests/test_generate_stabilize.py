@@ -139,3 +139,17 @@ def test_generated_object_keeps_the_stable_cover(tmp_path):
     meta = json.loads((tmp_path / "stable" / "meta.json").read_text())
     assert meta["stabilize"]["stable"] and meta["stabilize"]["method"] == "random"
     assert _covers_exactly(load_layout(str(tmp_path / "stable")), vox)
+
+
+def test_allow_support_adds_bricks_outside_the_shape_when_no_cover_stands():
+    vox = np.zeros((6, 6, 5), bool)
+    vox[1:3, 1:3, 0:2] = True
+    vox[0:4, 0:4, 3] = True  # the slab hovers over layer 2
+    r = stabilize(vox, StabilizeOptions(seeds=1, gradient=False, allow_support=True))
+    assert r.stable and r.method == "support" and r.support_bricks >= 1
+    assert analyze_layout(r.layout, solver="exact").stable
+    v, lo = layout_voxels(r.layout)
+    full = np.zeros((8, 8, 8), bool)
+    full[lo[0]:lo[0] + v.shape[0], lo[1]:lo[1] + v.shape[1], lo[2]:lo[2] + v.shape[2]] = v
+    assert full[:6, :6, :5][vox].all()  # every cell of the shape kept
+    assert (full[:6, :6, :5] & ~vox).any()  # and the support outside it
