@@ -63,6 +63,9 @@ class StabilizeOptions:
     reach: studs around a failing brick whose bricks are re-merged;
     random_moves: random covers tried per round; gradient: use the gradient
     move; steps / lr / lam: its Adam steps, step size and stability weight;
+    max_placements: the most region placements it optimises (the region's
+    current bricks and a random draw of the others; the decoding fills the
+    rest);
     allow_support: add support bricks outside the shape when no cover
     stands; bricks: the library footprints (must hold 1x1)."""
 
@@ -73,6 +76,7 @@ class StabilizeOptions:
     random_moves: int = 6
     gradient: bool = True
     steps: int = 12
+    max_placements: int = 400
     lr: float = 0.5
     lam: float = 20.0
     allow_support: bool = False
@@ -253,6 +257,7 @@ class _Gradient:
         lo = LossOptions(params=opts.params)
         self.opts = opts
         self.fns = {}
+        self.steps_done = 0  # soft solves (each a loss and its gradient)
 
         def make(fields):
             def f(theta, fixed, inc, lam, *arrays):
@@ -270,8 +275,23 @@ class _Gradient:
 
         self.make = make
 
-    def run(self, layout: Layout, region: np.ndarray, pos: np.ndarray, size: np.ndarray) -> np.ndarray:
-        """Probabilities (k,) of the region's placements after ``steps`` Adam steps."""
+    def run(self, layout: Layout, region: np.ndarray, pos: np.ndarray, size: np.ndarray,
+            rng: np.random.Generator, deadline: float) -> np.ndarray:
+        """Probabilities (k,) of the region's placements after ``steps`` Adam
+        steps (fewer past ``deadline``, a perf_counter time); placements
+        beyond ``max_placements`` are not optimised (probability 0)."""
+        k_all = len(pos)
+        cur = set(zip(map(tuple, layout.pos[region].tolist()), map(tuple, layout.size[region].tolist())))
+        is_cur = np.array([(p, s) in cur for p, s in zip(map(tuple, pos.tolist()), map(tuple, size.tolist()))])
+        keep = np.nonzero(is_cur)[0]
+        others = np.nonzero(~is_cur)[0]
+        room = max(self.opts.max_placements - len(keep), 0)
+        pick = np.sort(np.concatenate([keep, rng.choice(others, size=min(room, len(others)), replace=False)]))
+        p_all = np.zeros(k_all)
+        p_all[pick] = self._run(layout, region, pos[pick], size[pick], deadline)
+        return p_all
+
+    def _run(self, layout: Layout, region: np.ndarray, pos: np.ndarray, size: np.ndarray, deadline: float):
         import jax
 
         from ..soft import compile_placements
@@ -308,6 +328,9 @@ class _Gradient:
         b1, b2, lr = 0.9, 0.999, self.opts.lr
         with one_blas_thread():
             for t in range(1, self.opts.steps + 1):
+                if t > 1 and time.perf_counter() > deadline:
+                    break
+                self.steps_done += 1
                 _, g = jax.device_get(fn(theta, fixed, inc, np.float64(self.opts.lam), *arrays))
                 g = np.nan_to_num(np.asarray(g))
                 m = b1 * m + (1 - b1) * g
@@ -331,11 +354,13 @@ def stabilize(vox: np.ndarray, opts: StabilizeOptions = StabilizeOptions(), sour
         return analyze_layout(layout, solver="exact", params=opts.params)
 
     def out(layout, a, method, rounds, support=0, reason=""):
+        calls["soft"] += grad.steps_done if grad is not None else 0
         return StabilizeResult(layout=layout, start=start, stable=bool(a.stable), method=method,
                                bricks_changed=_same_bricks(layout, start), exact_calls=calls["exact"],
                                soft_calls=calls["soft"], rounds=rounds, failing=merit(a)[0],
                                support_bricks=support, time_s=time.perf_counter() - t0, reason=reason)
 
+    grad = None
     start = merge_voxels(vox, seed=0, bricks=opts.bricks, source=source)
     a = check(start)
     best, best_a, how = start, a, "heuristic"
@@ -386,8 +411,7 @@ def stabilize(vox: np.ndarray, opts: StabilizeOptions = StabilizeOptions(), sour
             improved |= attempt("random", _random_rank(base, region, pos, size, rng))
         if not improved and grad is not None and time.perf_counter() - t0 < opts.time_s:
             try:
-                p = grad.run(base, region, pos, size)
-                calls["soft"] += opts.steps
+                p = grad.run(base, region, pos, size, rng, t0 + opts.time_s)
                 improved = attempt("gradient", np.argsort(-p, kind="stable"))
             except Exception as exc:  # noqa: BLE001 - the random moves go on
                 say(f"gradient move failed ({type(exc).__name__}: {exc}); random moves only")
