@@ -1,4 +1,6 @@
+import atexit
 import os
+import shutil
 import sys
 import tempfile
 
@@ -8,8 +10,12 @@ import pytest
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
 
 # The library's disk caches (compiled solvers) go to a folder of this test run,
-# never to the user's ~/.cache; subprocesses started by tests inherit it.
-os.environ.setdefault("STABLELEGO_CACHE_DIR", tempfile.mkdtemp(prefix="stablelego-test-cache-"))
+# never to the user's ~/.cache; subprocesses started by tests (and xdist's
+# workers) inherit it; the process that made it removes it at exit.
+if "STABLELEGO_CACHE_DIR" not in os.environ:
+    _cache = tempfile.mkdtemp(prefix="stablelego-test-cache-")
+    os.environ["STABLELEGO_CACHE_DIR"] = _cache
+    atexit.register(shutil.rmtree, _cache, ignore_errors=True)
 
 EXAMPLES = os.path.join(os.path.dirname(__file__), "..", "examples")
 
