@@ -5,7 +5,23 @@ import json
 import os
 import sys
 
-__all__ = ["solver_for", "png_target", "report_error", "load_library"]
+__all__ = ["solver_for", "png_target", "report_error", "load_library", "int_at_least"]
+
+
+def int_at_least(lo: int):
+    """argparse ``type``: an integer >= ``lo``, else a usage error saying so."""
+    import argparse
+
+    def parse(v: str) -> int:
+        try:
+            k = int(v)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected an integer >= {lo}, got {v!r}") from None
+        if k < lo:
+            raise argparse.ArgumentTypeError(f"expected an integer >= {lo}, got {k}")
+        return k
+
+    return parse
 
 
 def solver_for(args) -> str:

@@ -2,11 +2,10 @@
 the command line of :mod:`stablelego_jax.design.repair`."""
 from __future__ import annotations
 
-import argparse
 import json
 import os
 
-from .common import report_error
+from .common import int_at_least, report_error
 
 __all__ = ["add_parser", "cmd_repair"]
 
@@ -27,7 +26,7 @@ def add_parser(sub) -> None:
     r.add_argument("--region", choices=["bbox", "shape", "any"], default="bbox",
                    help="where new bricks may go: bbox (default: the layout's bounding box down to the "
                         "baseplate), shape (above or below the layout's own columns), any")
-    r.add_argument("--max-add", type=_nonneg, default=4, metavar="K", help="most bricks to add (default 4)")
+    r.add_argument("--max-add", type=int_at_least(0), default=4, metavar="K", help="most bricks to add (default 4)")
     r.add_argument("--allow-remove", action="store_true",
                    help="allow replacing a user brick by a longer one (otherwise user bricks are never touched)")
     r.add_argument("--png", metavar="P", help="before/after heat maps (PNG)")
@@ -35,27 +34,10 @@ def add_parser(sub) -> None:
     r.add_argument("--library", help="brick library JSON of IN (default: the StableLego library)")
     r.add_argument("--method", choices=["gradient", "greedy"], default="gradient",
                    help="gradient (default): rank candidates by the loss gradient; greedy: full solve of every one")
-    r.add_argument("--verify", type=_positive, default=3, metavar="V",
+    r.add_argument("--verify", type=int_at_least(1), default=3, metavar="V",
                    help="best-ranked candidates checked with the exact solver per step (default 3)")
     r.add_argument("--json", action="store_true", help="print one JSON object instead of text")
     r.set_defaults(func=cmd_repair)
-
-
-def _nonneg(v: str) -> int:
-    try:
-        k = int(v)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {v!r}") from None
-    if k < 0:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {k}")
-    return k
-
-
-def _positive(v: str) -> int:
-    k = _nonneg(v)
-    if k < 1:
-        raise argparse.ArgumentTypeError("expected an integer >= 1")
-    return k
 
 
 def _relabel_text(result, path: str):

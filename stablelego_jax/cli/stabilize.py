@@ -2,12 +2,11 @@
 :mod:`stablelego_jax.generate.stabilize`."""
 from __future__ import annotations
 
-import argparse
 import json
 import os
 import sys
 
-from .common import report_error
+from .common import int_at_least, report_error
 
 __all__ = ["add_parser", "cmd_stabilize", "read_shape"]
 
@@ -30,10 +29,10 @@ def add_parser(sub) -> None:
     s.add_argument("input", metavar="IN",
                    help="a layout file or dataset object folder (its cells), a vox.npy (X, Y, Z) grid, or a mesh")
     s.add_argument("--out", required=True, metavar="OUT", help="the stable layout (StableLego JSON)")
-    s.add_argument("--seeds", type=_count(1), default=20, help="heuristic tie-break seeds tried first (default 20)")
-    s.add_argument("--rounds", type=_count(0), default=40, help="re-merge rounds at most (default 40)")
+    s.add_argument("--seeds", type=int_at_least(1), default=20, help="heuristic tie-break seeds tried first (default 20)")
+    s.add_argument("--rounds", type=int_at_least(0), default=40, help="re-merge rounds at most (default 40)")
     s.add_argument("--time", type=float, default=600.0, metavar="S", help="time budget in seconds (default 600)")
-    s.add_argument("--reach", type=_count(0), default=2,
+    s.add_argument("--reach", type=int_at_least(0), default=2,
                    help="studs around a failing brick whose bricks are re-merged (default 2)")
     s.add_argument("--no-gradient", action="store_true", help="random re-merges only (no gradient move)")
     s.add_argument("--allow-support", action="store_true",
@@ -47,19 +46,6 @@ def add_parser(sub) -> None:
     s.add_argument("--json", action="store_true", help="print one JSON object instead of text")
     s.add_argument("--quiet", action="store_true", help="no progress on stderr")
     s.set_defaults(func=cmd_stabilize)
-
-
-def _count(lo: int):
-    def parse(v: str) -> int:
-        try:
-            k = int(v)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"expected an integer >= {lo}, got {v!r}") from None
-        if k < lo:
-            raise argparse.ArgumentTypeError(f"expected an integer >= {lo}, got {k}")
-        return k
-
-    return parse
 
 
 def read_shape(path: str, grid: int = 20, up: str = "auto", fill: str = "auto", library=None):

@@ -113,14 +113,16 @@ class StabilizeResult:
                 "rounds": self.rounds, "time_s": round(self.time_s, 3), "reason": self.reason}
 
 
-def layout_voxels(layout: Layout) -> tuple[np.ndarray, np.ndarray]:
+def layout_voxels(layout: Layout, which: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """(vox (X, Y, Z) bool of the cells a grid layout covers, offset (3,)
-    of cell [0, 0, 0] in the layout's coordinates)."""
-    cells, _ = cells_of(layout.pos, layout.size)
+    of cell [0, 0, 0] in the layout's coordinates); ``which`` (n,) bool:
+    only the cells of those bricks, in the grid of the whole layout."""
+    cells, owner = cells_of(layout.pos, layout.size)
     lo = cells.min(axis=0)
     ext = cells.max(axis=0) - lo + 1
     vox = np.zeros(tuple(ext.tolist()), bool)
-    vox[tuple((cells - lo).T)] = True
+    sel = cells if which is None else cells[which[owner]]
+    vox[tuple((sel - lo).T)] = True
     return vox, lo
 
 
@@ -137,13 +139,14 @@ def ungroundable_cells(vox: np.ndarray) -> np.ndarray:
     return vox & ~np.isin(lab, grounded)
 
 
+def _failing(a: Analysis) -> np.ndarray:
+    """Indices of the bricks that fail (score >= 1)."""
+    return np.array([i for i, k in enumerate(a.layout.keys) if a.scores[k] >= 1.0], np.int64)
+
+
 def merit(a: Analysis) -> tuple[int, float]:
     """(failing bricks, exact overload in T): lower is better; (0, 0) stands."""
-    return int(sum(1 for v in a.scores.values() if v >= 1.0)), exact_loss(a)
-
-
-def _failing(a: Analysis) -> np.ndarray:
-    return np.array([i for i, k in enumerate(a.layout.keys) if a.scores[k] >= 1.0], np.int64)
+    return len(_failing(a)), exact_loss(a)
 
 
 def _region(layout: Layout, failing: np.ndarray, reach: int) -> np.ndarray:
@@ -192,12 +195,7 @@ def recover_region(layout: Layout, region: np.ndarray, rank: np.ndarray, pos: np
     """``layout`` with the bricks of ``region`` (n,) bool replaced by an exact
     cover of their cells from placements (pos, size) taken in ``rank``
     order (see :func:`_exact_cover`)."""
-    cells, owner = cells_of(layout.pos, layout.size)
-    sel = region[owner]
-    lo = cells.min(axis=0)
-    ext = cells.max(axis=0) - lo + 1
-    mask = np.zeros(tuple(ext.tolist()), bool)
-    mask[tuple((cells[sel] - lo).T)] = True
+    mask, lo = layout_voxels(layout, region)
     p, s = _exact_cover(mask, pos - lo, size, rank, types)
     keep = ~region
     return brick_layout(np.concatenate([layout.pos[keep], p + lo]), np.concatenate([layout.size[keep], s]),
@@ -205,12 +203,8 @@ def recover_region(layout: Layout, region: np.ndarray, rank: np.ndarray, pos: np
 
 
 def _region_placements(layout: Layout, region: np.ndarray, types):
-    cells, owner = cells_of(layout.pos, layout.size)
-    sel = region[owner]
-    lo = cells.min(axis=0)
-    ext = cells.max(axis=0) - lo + 1
-    mask = np.zeros(tuple(ext.tolist()), bool)
-    mask[tuple((cells[sel] - lo).T)] = True
+    """(pos, size) of every placement of ``types`` inside the region's cells."""
+    mask, lo = layout_voxels(layout, region)
     pos, size = placements_in(mask, types)
     return pos + lo, size
 
@@ -236,10 +230,15 @@ def _random_rank(layout: Layout, region: np.ndarray, pos: np.ndarray, size: np.n
     return np.argsort(-key, kind="stable")
 
 
+def _bricks(pos: np.ndarray, size: np.ndarray) -> list[tuple]:
+    """(corner, size) tuples of bricks or placements, to compare as sets."""
+    return list(zip(map(tuple, pos.tolist()), map(tuple, size.tolist())))
+
+
 def _same_bricks(a: Layout, b: Layout) -> int:
     """Bricks of ``a`` that are not in ``b`` (same corner and size)."""
-    sb = set(zip(map(tuple, b.pos.tolist()), map(tuple, b.size.tolist())))
-    return sum(1 for p, s in zip(map(tuple, a.pos.tolist()), map(tuple, a.size.tolist())) if (p, s) not in sb)
+    sb = set(_bricks(b.pos, b.size))
+    return sum(1 for t in _bricks(a.pos, a.size) if t not in sb)
 
 
 class _Gradient:
@@ -281,17 +280,18 @@ class _Gradient:
         steps (fewer past ``deadline``, a perf_counter time); placements
         beyond ``max_placements`` are not optimised (probability 0)."""
         k_all = len(pos)
-        cur = set(zip(map(tuple, layout.pos[region].tolist()), map(tuple, layout.size[region].tolist())))
-        is_cur = np.array([(p, s) in cur for p, s in zip(map(tuple, pos.tolist()), map(tuple, size.tolist()))])
+        cur = set(_bricks(layout.pos[region], layout.size[region]))
+        is_cur = np.array([t in cur for t in _bricks(pos, size)], bool)
         keep = np.nonzero(is_cur)[0]
         others = np.nonzero(~is_cur)[0]
         room = max(self.opts.max_placements - len(keep), 0)
         pick = np.sort(np.concatenate([keep, rng.choice(others, size=min(room, len(others)), replace=False)]))
         p_all = np.zeros(k_all)
-        p_all[pick] = self._run(layout, region, pos[pick], size[pick], deadline)
+        p_all[pick] = self._run(layout, region, pos[pick], size[pick], is_cur[pick], deadline)
         return p_all
 
-    def _run(self, layout: Layout, region: np.ndarray, pos: np.ndarray, size: np.ndarray, deadline: float):
+    def _run(self, layout: Layout, region: np.ndarray, pos: np.ndarray, size: np.ndarray, is_cur: np.ndarray,
+             deadline: float):
         import jax
 
         from ..soft import compile_placements
@@ -312,11 +312,8 @@ class _Gradient:
         inc[np.ravel(cid), nf + owner] = 1.0
         fixed = np.zeros(n_pad, bool)
         fixed[:nf] = True
-        cur = set(zip(map(tuple, layout.pos[region].tolist()), map(tuple, layout.size[region].tolist())))
-        theta = np.full(n_pad, -3.0)
-        for i, (p, s) in enumerate(zip(map(tuple, pos.tolist()), map(tuple, size.tolist()))):
-            if (p, s) in cur:
-                theta[nf + i] = 2.0
+        theta = np.full(n_pad, -3.0)  # warm start: the region's current bricks likely, the rest not
+        theta[nf:nf + k][is_cur] = 2.0
         fields = tuple(f for f in prob._fields if getattr(prob, f) is not None)
         key = (fields, n_pad, c_pad) + tuple(np.shape(getattr(prob, f)) for f in fields)
         if key not in self.fns:
