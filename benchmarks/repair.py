@@ -1,7 +1,21 @@
-"""Repair benchmark (issue 5): gradient-guided repair vs greedy search vs LLM rollback.
+"""Repair benchmark (issues 5 and 19): gradient-guided repair vs greedy search vs LLM rollback.
 
-Usage: python benchmarks/repair.py [--n 100] [--out benchmarks/results/repair.jsonl]
-                                   [--max-add 4] [--verify 3] [--max-bricks 60] [--table]
+Usage: python benchmarks/repair.py [--set small|large] [--n 100] [--out FILE] [--methods gradient,greedy,rollback]
+                                   [--max-add K|auto] [--verify 3] [--max-bricks 60] [--time S] [--table]
+
+``--set large`` (issue 19): the shared meshes voxelised at grids 10-24
+(even) with each of the up axes z, y and x, merged into bricks
+(merge_voxels, seed 0), in a seeded random order; the first ``--n`` that
+the exact solver says fail and have at most ``--max-bricks`` bricks
+(default 800 for this set). Many have parts that touch nothing leading to
+the ground (a handle, a hovering roof): rollback deletes them, repair must
+carry them. Default budget: auto (max(4, n/4) bricks), ``--time 300`` s per
+method and layout; the candidate list of each step is kept in
+``results/repair_large_set.jsonl`` (resumable). Results go to
+``results/repair_large.jsonl``. ``--methods`` runs some methods only; a
+later run with the others completes the rows.
+
+The rest of this docstring describes ``--set small`` (the default).
 
 Layouts: seeded, exactly-unstable (HiGHS) layouts from five families, in
 turn: cantilever staircases (``stairs``), leaning towers (``tower``: every
@@ -31,7 +45,6 @@ layouts already there. ``--table`` prints the summary table from the file.
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import platform
 import sys
@@ -42,12 +55,13 @@ import time
 for _v in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS"):
     os.environ.setdefault(_v, "1")
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
 import numpy as np  # noqa: E402
 
 from stablelego_jax.generate.procedural import lever, stairs, tower, voxel_layout  # noqa: E402
 from stablelego_jax.analysis import analyze_layout  # noqa: E402
-from stablelego_jax.batch import read_results  # noqa: E402
+from rows import append_row, read_rows  # noqa: E402
 from stablelego_jax.design.repair import RepairOptions, greedy_repair, repair, rollback_repair  # noqa: E402
 from stablelego_jax.solvers.compiled import STATS  # noqa: E402
 
@@ -102,9 +116,55 @@ def layouts(n: int, max_bricks: int, max_failing: int):
     return out
 
 
-def run(name, lay, opts: RepairOptions) -> dict:
-    row = {"name": name, "family": name.split("/")[0], "n_bricks": lay.n}
-    for m, fn in METHODS.items():
+MESHES = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..", "shared", "meshes")
+LARGE_GRIDS = (10, 12, 14, 16, 18, 20, 22, 24)
+UPS = ("z", "y", "x")
+
+
+def mesh_layout(name: str):
+    """The layout of a large-set name ``mesh/<file>/g<grid>/<up>``."""
+    from stablelego_jax.generate.mesh import voxelize
+    from stablelego_jax.generate.voxels import merge_voxels
+
+    _, f, g, up = name.split("/")
+    return merge_voxels(voxelize(os.path.join(MESHES, f), grid=int(g[1:]), up=up).vox, seed=0)
+
+
+def large_layouts(n: int, max_bricks: int, set_file: str):
+    """(name, layout) of the first ``n`` unstable mesh layouts of at most
+    ``max_bricks`` bricks, configurations in a seeded random order; each
+    configuration's verdict is kept in ``set_file``."""
+    from stablelego_jax.generate.mesh import MESH_SUFFIXES
+
+    files = sorted(f for f in os.listdir(MESHES) if f.lower().endswith(MESH_SUFFIXES))
+    names = [f"mesh/{f}/g{g}/{up}" for f in files for g in LARGE_GRIDS for up in UPS]
+    names = [names[i] for i in np.random.default_rng(19).permutation(len(names))]
+    seen = read_rows(set_file, "name")
+    out = []
+    for name in names:
+        if len(out) >= n:
+            break
+        row = seen.get(name)
+        if row is not None and (row["n_bricks"] > max_bricks or row["stable"]):
+            continue
+        lay = mesh_layout(name)
+        if row is None:
+            row = {"name": name, "n_bricks": lay.n, "stable": None, "failing": None}
+            if lay.n <= max_bricks:
+                a = analyze_layout(lay, solver="exact")
+                row.update(stable=bool(a.stable), failing=int(sum(v >= 1.0 for v in a.scores.values())))
+            append_row(set_file, row)
+            print(f"  set: {name}: {lay.n} bricks, " + ("too many" if row["stable"] is None else
+                  "stands" if row["stable"] else f"{row['failing']} failing"), file=sys.stderr, flush=True)
+        if lay.n <= max_bricks and not row["stable"]:
+            out.append((name, lay))
+    return out
+
+
+def run(name, lay, opts: RepairOptions, methods=tuple(METHODS), row=None) -> dict:
+    row = dict(row or {"name": name, "family": name.split("/")[0], "n_bricks": lay.n})
+    for m in methods:
+        fn = METHODS[m]
         c0, s0, e0 = STATS.compiles, STATS.compile_s, STATS.evicted
         t = time.perf_counter()
         r = fn(lay, opts)
@@ -118,6 +178,7 @@ def run(name, lay, opts: RepairOptions) -> dict:
 
 
 def table(rows) -> str:
+    rows = [r for r in rows if all(m in r for m in METHODS)]
     n = len(rows)
     counts = ", ".join(f"{f} {sum(r['family'] == f for r in rows)}" for f in FAMILIES)
     lines = [f"{n} unstable layouts ({counts}):",
@@ -159,7 +220,7 @@ def table(rows) -> str:
                      f"vs greedy {np.mean([r['greedy']['added'] for r in both]):.2f}; solver calls gradient "
                      f"{np.mean([r['gradient']['solver_calls'] for r in both]):.1f} vs greedy "
                      f"{np.mean([r['greedy']['solver_calls'] for r in both]):.1f}.")
-    for f in FAMILIES:
+    for f in FAMILIES + ("mesh",):
         rs = [r for r in rows if r["family"] == f]
         if rs:
             lines.append(f"- {f}: " + ", ".join(f"{m} {sum(r[m]['stable'] for r in rs)}/{len(rs)}" for m in METHODS))
@@ -168,27 +229,43 @@ def table(rows) -> str:
 
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--set", choices=["small", "large"], default="small")
     ap.add_argument("--n", type=int, default=100)
-    ap.add_argument("--out", default=os.path.join(os.path.dirname(__file__), "results", "repair.jsonl"))
-    ap.add_argument("--max-add", type=int, default=4)
+    ap.add_argument("--out", default=None, help="default results/repair.jsonl (small), repair_large.jsonl (large)")
+    ap.add_argument("--methods", default=",".join(METHODS))
+    ap.add_argument("--max-add", default=None, help="integer or auto (default: 4 for small, auto for large)")
     ap.add_argument("--verify", type=int, default=3)
-    ap.add_argument("--max-bricks", type=int, default=60)
+    ap.add_argument("--max-bricks", type=int, default=None, help="default 60 (small), 800 (large)")
+    ap.add_argument("--time", type=float, default=None, help="seconds per method and layout (default: none "
+                    "for small, 300 for large)")
     ap.add_argument("--table", action="store_true", help="only print the table of --out")
     args = ap.parse_args()
-    done = read_results(args.out, key="name")  # drops a torn last line after a kill
+    large = args.set == "large"
+    res = os.path.join(os.path.dirname(os.path.abspath(__file__)), "results")
+    out = args.out or os.path.join(res, "repair_large.jsonl" if large else "repair.jsonl")
+    methods = [m for m in args.methods.split(",") if m]
+    bad = [m for m in methods if m not in METHODS]
+    if bad:
+        ap.error(f"unknown methods {bad}; choose from {list(METHODS)}")
+    max_add = args.max_add or ("auto" if large else "4")
+    max_bricks = args.max_bricks or (800 if large else 60)
+    time_s = args.time if args.time is not None else (300.0 if large else None)
+    done = read_rows(out, "name")
     if not args.table:
-        opts = RepairOptions(max_add=args.max_add, verify=args.verify)
+        opts = RepairOptions(max_add=None if max_add == "auto" else int(max_add), verify=args.verify, time_s=time_s)
         print(f"# {platform.processor() or platform.machine()}, {os.cpu_count()} CPUs; {opts}", flush=True)
-        for name, lay in layouts(args.n, args.max_bricks, args.max_add):
-            if name in done:
+        todo = (large_layouts(args.n, max_bricks, os.path.join(res, "repair_large_set.jsonl")) if large
+                else layouts(args.n, max_bricks, opts.max_add))
+        for name, lay in todo:
+            missing = [m for m in methods if m not in done.get(name, {})]
+            if not missing:
                 continue
-            row = run(name, lay, opts)
+            row = run(name, lay, opts, missing, done.get(name))
             done[name] = row
-            with open(args.out, "a") as fh:
-                fh.write(json.dumps(row) + "\n")
+            append_row(out, row)
             print(name, lay.n, " ".join(f"{m}: {'ok' if row[m]['stable'] else 'FAIL'} +{row[m]['added']} "
                                         f"{row[m]['solver_calls']} calls {row[m]['time_s']:.1f}s"
-                                        for m in METHODS), flush=True)
+                                        for m in missing), flush=True)
     rows = [r for r in done.values()][: args.n]
     print(table(rows))
 

@@ -22,7 +22,6 @@ whose cells include a part that touches nothing leading to the ground are
 reported as such (no cover stands). The summary (markdown) goes to stdout.
 """
 import argparse
-import json
 import os
 import platform
 import sys
@@ -31,12 +30,14 @@ import time
 import numpy as np
 
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
 from stablelego_jax.generate.mesh import MESH_SUFFIXES, voxelize  # noqa: E402
 from stablelego_jax.generate.stabilize import (StabilizeOptions, layout_voxels, merit,  # noqa: E402
                                                stabilize, ungroundable_cells)
 from stablelego_jax.generate.voxels import SHAPE_KINDS, merge_voxels, random_voxel_shape  # noqa: E402
 from stablelego_jax.analysis import analyze_layout  # noqa: E402
+from rows import append_row, read_rows  # noqa: E402
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 RESULTS = os.path.join(HERE, "results")
@@ -105,23 +106,14 @@ def main(argv=None):
     ap.add_argument("--out", default=os.path.join(RESULTS, "stabilize.jsonl"))
     args = ap.parse_args(argv)
     os.makedirs(os.path.dirname(args.out), exist_ok=True)
-    done = {}
-    if os.path.exists(args.out):
-        with open(args.out) as fh:
-            for line in fh:
-                try:
-                    r = json.loads(line)
-                    done[r["shape"]] = r
-                except ValueError:
-                    pass
+    done = read_rows(args.out, "shape")
     todo = [(n, f) for n, f in shapes(args.meshes, args.procedural) if n not in done]
     for k, (name, make) in enumerate(todo, 1):
         vox = make()
         rec = {"shape": name, "cells": int(vox.sum()), "ungroundable": int(ungroundable_cells(vox).sum())}
         rec["methods"] = run_methods(vox, args.rounds, args.time)
         done[name] = rec
-        with open(args.out, "a") as fh:
-            fh.write(json.dumps(rec) + "\n")
+        append_row(args.out, rec)
         m = rec["methods"]
         print(f"[{k}/{len(todo)}] {name}: " + ", ".join(f"{a} {'yes' if b['stable'] else 'no'}" for a, b in m.items()),
               file=sys.stderr, flush=True)

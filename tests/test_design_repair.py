@@ -11,7 +11,7 @@ from conftest import EXAMPLES
 from stablelego_jax import load_layout
 from stablelego_jax.analysis import analyze_layout
 from stablelego_jax.cli import main
-from stablelego_jax.layout import cells_of
+from stablelego_jax.layout import brick_layout, cells_of
 from stablelego_jax.design.repair import RepairOptions, greedy_repair, propose, repair, rollback_repair
 
 REF = os.path.join(EXAMPLES, "stablelego")
@@ -59,11 +59,11 @@ def test_candidates_respect_region_and_remove():
     zmax = int(lay.pos[:, 2].max())
     for region in ("bbox", "shape", "any"):
         cands = propose(lay, a, RepairOptions(region=region))
-        assert cands and len(cands) <= RepairOptions().max_candidates
+        assert cands and len(cands) <= 48  # one failing cluster: the automatic cap is 48
         for c in cands:
             cells = set(map(tuple, cells_of(c.pos, c.size)[0].tolist()))
             assert not cells & occ  # never overlaps the layout
-            assert c.replaces == -1 and c.k <= RepairOptions().max_add
+            assert c.replaces == -1 and c.k <= RepairOptions().budget(lay.n) == 5  # 20 bricks: max(4, 20 / 4)
             if region == "bbox":
                 assert _in_bbox(lay, c.pos, c.size)
             if region == "shape":
@@ -97,6 +97,41 @@ def test_max_add_zero_and_option_errors():
         RepairOptions(region="sphere")
     with pytest.raises(ValueError, match="verify"):
         RepairOptions(verify=0)
+    with pytest.raises(ValueError, match="time_s"):
+        RepairOptions(time_s=0)
+    with pytest.raises(ValueError, match="max_candidates"):
+        RepairOptions(max_candidates=0)
+
+
+def test_budget_and_candidate_cap_scale_with_the_layout():
+    auto, fixed = RepairOptions(), RepairOptions(max_add=3, max_candidates=10)
+    assert [auto.budget(n) for n in (1, 16, 17, 800)] == [4, 4, 5, 200]
+    assert fixed.budget(800) == 3
+    assert [auto.candidate_cap(c) for c in (0, 1, 2, 3, 30)] == [48, 48, 48, 72, 480]
+    assert fixed.candidate_cap(30) == 10
+
+
+def test_time_budget_stops_the_search():
+    lay = load_layout(STAIR20)
+    r = repair(lay, RepairOptions(time_s=1e-9))
+    assert not r.stable and r.added == 0 and r.exact_calls == 1 and r.soft_calls == 0
+
+
+def test_separate_failing_parts_are_fixed_together():
+    # a floor of 2x4 bricks with two 2x2 bricks hovering over opposite ends (a
+    # layer of air between): each needs its own pillar, no single unit saves both
+    floor = [((x, 0, 0), (4, 2)) for x in range(0, 16, 4)]
+    lay = brick_layout([p for p, _ in floor] + [(0, 0, 2), (14, 0, 2)], [s for _, s in floor] + [(2, 2), (2, 2)])
+    a = analyze_layout(lay, solver="exact")
+    assert sorted(k for k, v in a.scores.items() if v >= 1.0) == ["5", "6"]
+    r = repair(lay)
+    assert r.stable and r.kept == 1.0 and r.soft_calls == 1
+    assert r.added == 2 and len(r.changes) == 2  # one 1-brick pillar under each, in one step
+    below = [{(x, y, 1) for x in xs for y in (0, 1)} for xs in ((0, 1), (14, 15))]  # under the two hovering bricks
+    assert all(sum(bool(c.candidate.cells() & cells) for c in r.changes) == 1 for cells in below)
+    # without combining, one unit per step: the same two pillars, one more differentiable solve
+    r1 = repair(lay, RepairOptions(combine=False))
+    assert r1.stable and r1.added == 2 and r1.soft_calls == 2
 
 
 def test_cli_json_png(tmp_path, capsys):
@@ -146,9 +181,14 @@ def test_cli_errors_and_stable_input(tmp_path, capsys):
     # not repairable within the budget: nothing written, non-zero exit
     assert main(["repair", STAIR20, "--out", str(out), "--max-add", "0"]) == 1
     assert "still UNSTABLE" in capsys.readouterr().out and not out.exists()
-    with pytest.raises(SystemExit):
-        main(["repair", STAIR20, "--out", str(out), "--max-add", "-1"])
-    capsys.readouterr()
+    for bad_arg in (["--max-add", "-1"], ["--max-add", "many"], ["--time", "0"], ["--time", "soon"]):
+        with pytest.raises(SystemExit):
+            main(["repair", STAIR20, "--out", str(out)] + bad_arg)
+        assert bad_arg[1] in capsys.readouterr().err
+    # an explicit automatic budget and a time budget are accepted
+    assert main(["repair", STAIR20, "--out", str(out), "--max-add", "auto", "--time", "600", "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["stable"] and out.exists()
+    out.unlink()
     # a stable input is written unchanged
     assert main(["repair", os.path.join(REF, "stair_19.json"), "--out", str(out)]) == 0
     assert "nothing to repair" in capsys.readouterr().out

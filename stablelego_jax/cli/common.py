@@ -24,6 +24,29 @@ def int_at_least(lo: int):
     return parse
 
 
+def int_or_auto(lo: int):
+    """argparse ``type``: "auto" (returned as None) or an integer >= ``lo``."""
+    parse_int = int_at_least(lo)
+
+    def parse(v: str):
+        return None if v == "auto" else parse_int(v)
+
+    return parse
+
+
+def positive_seconds(v: str) -> float:
+    """argparse ``type``: a number of seconds > 0."""
+    import argparse
+
+    try:
+        t = float(v)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected seconds > 0, got {v!r}") from None
+    if not t > 0:
+        raise argparse.ArgumentTypeError(f"expected seconds > 0, got {v}")
+    return t
+
+
 def solver_for(args) -> str:
     """--solver as given, else jax for ours and exact for the baselines."""
     return args.solver or ("jax" if args.method == "ours" else "exact")

@@ -1,11 +1,11 @@
-"""``stablelego repair IN --out OUT [--region bbox|shape|any] [--max-add K] [--allow-remove] [--png P] [--html P]``:
+"""``stablelego repair IN --out OUT [--region bbox|shape|any] [--max-add K|auto] [--time S] [--allow-remove] [--png P] [--html P]``:
 the command line of :mod:`stablelego_jax.design.repair`."""
 from __future__ import annotations
 
 import json
 import os
 
-from .common import int_at_least, report_error
+from .common import int_at_least, int_or_auto, positive_seconds, report_error
 
 __all__ = ["add_parser", "cmd_repair"]
 
@@ -17,8 +17,9 @@ def add_parser(sub) -> None:
         description="Repair an unstable layout: candidate bricks near the weakest bricks (supports, bridges, "
                     "longer replacements with --allow-remove) are ranked by the gradient of the differentiable "
                     "stability loss with respect to their existence weights, the best are checked with the exact "
-                    "solver, and the best is added; repeated until the exact solver says the layout stands or "
-                    "--max-add bricks are spent. Original bricks keep their keys and places; new bricks get new "
+                    "solver, and the best is added (when several clusters of bricks fail, the best of each cluster "
+                    "together first); repeated until the exact solver says the layout stands, --max-add bricks "
+                    "are spent or --time runs out. Original bricks keep their keys and places; new bricks get new "
                     "keys. OUT is written in the format of IN only when the result stands.",
     )
     r.add_argument("layout", metavar="IN", help="layout file (JSON, text, .ldr) or dataset object folder")
@@ -26,7 +27,10 @@ def add_parser(sub) -> None:
     r.add_argument("--region", choices=["bbox", "shape", "any"], default="bbox",
                    help="where new bricks may go: bbox (default: the layout's bounding box down to the "
                         "baseplate), shape (above or below the layout's own columns), any")
-    r.add_argument("--max-add", type=int_at_least(0), default=4, metavar="K", help="most bricks to add (default 4)")
+    r.add_argument("--max-add", type=int_or_auto(0), default=None, metavar="K",
+                   help="most bricks to add, or auto (default: max(4, a quarter of the layout's bricks))")
+    r.add_argument("--time", type=positive_seconds, default=None, metavar="S",
+                   help="wall-time budget in seconds (default: none)")
     r.add_argument("--allow-remove", action="store_true",
                    help="allow replacing a user brick by a longer one (otherwise user bricks are never touched)")
     r.add_argument("--png", metavar="P", help="before/after heat maps (PNG)")
@@ -161,7 +165,7 @@ def cmd_repair(args) -> int:
         # every output is checked before the repair runs and renamed into place only when all are written
         with staged_outputs(files) as stage:
             opts = RepairOptions(region=args.region, max_add=args.max_add, allow_remove=args.allow_remove,
-                                 verify=args.verify, sizes=_library_sizes(args.library) if args.library else None)
+                                 verify=args.verify, time_s=args.time, sizes=_library_sizes(args.library) if args.library else None)
             result = (repair if args.method == "gradient" else greedy_repair)(layout, opts)
             if layout.fmt == "text":
                 result = _relabel_text(result, path)

@@ -45,7 +45,7 @@ from ..blas import one_blas_thread
 from ..layout import TABLE_I_MASS_KG, Layout, cells_of
 from ..loss import LossOptions, stability_loss
 from ..model import Params
-from ..score import residual_bad
+from ..score import floating_bricks, residual_bad
 from ..soft import Candidate, SoftProblem, apply_candidates, candidate_brick, compile_soft, fresh_keys
 from ..solvers.compiled import compiled
 from ..solvers.problem import plan_soft
@@ -67,7 +67,8 @@ _PER_TARGET = 6  # support variants per supported brick (lowest pillars, widest 
 
 # support and bridge footprints (sx, sy): real bricks of paper Table I
 _SUPPORT = ((1, 1), (1, 2), (2, 1), (2, 2), (1, 4), (4, 1), (2, 4), (4, 2))
-_BRIDGE = ((1, 2), (2, 1), (2, 2), (1, 4), (4, 1), (2, 4), (4, 2), (1, 6), (6, 1), (2, 6), (6, 2))
+_BRIDGE = ((1, 2), (2, 1), (2, 2), (1, 4), (4, 1), (2, 4), (4, 2), (1, 6), (6, 1), (2, 6), (6, 2), (1, 8), (8, 1))
+_PER_CLUSTER = 24  # candidates per failing cluster when max_candidates is automatic
 
 
 @dataclasses.dataclass(frozen=True)
@@ -75,10 +76,20 @@ class RepairOptions:
     """Settings of a repair.
 
     region: "bbox" | "shape" | "any" (see the module docstring).
-    max_add: most bricks to add. allow_remove: allow replacing user bricks.
+    max_add: most bricks to add; None (default): scales with the layout,
+      max(4, ceil(n / 4)) for n bricks (:meth:`budget`).
+    allow_remove: allow replacing user bricks.
     verify: candidates checked with the exact solver per step (gradient method).
-    weak: how many of the weakest bricks get candidates around them.
-    max_candidates: cap on candidates per step (nearest the weakest bricks first).
+    weak: how many of the weakest bricks get candidates around them (besides
+      every failing brick).
+    max_candidates: cap on candidates per step (weakest bricks first, in turn
+      over the failing clusters); None (default): 48, or 24 per failing
+      cluster when there are more, at most 480.
+    combine: when several clusters of bricks fail (bricks joined by knob or
+      side contacts), first try the best-ranked candidate of each cluster
+      together (gradient method), one exact solve for all of them.
+    time_s: wall-time budget in seconds (None: none); a repair that runs
+      out returns what it has (not stable).
     temperature: loss temperature of the ranking.
     exact_method: HiGHS method of the exact solver.
     sizes: footprints (sx, sy) new bricks may have (None: every Table I brick);
@@ -87,11 +98,13 @@ class RepairOptions:
     """
 
     region: str = "bbox"
-    max_add: int = 4
+    max_add: int | None = None
     allow_remove: bool = False
     verify: int = 3
     weak: int = 4
-    max_candidates: int = 48
+    max_candidates: int | None = None
+    combine: bool = True
+    time_s: float | None = None
     temperature: float = 0.02
     exact_method: str = "highs"
     sizes: tuple | None = None
@@ -103,10 +116,24 @@ class RepairOptions:
     def __post_init__(self):
         if self.region not in REGIONS:
             raise ValueError(f"region must be one of {REGIONS}, got {self.region!r}")
-        if self.max_add < 0:
-            raise ValueError(f"max_add must be >= 0, got {self.max_add}")
+        if self.max_add is not None and self.max_add < 0:
+            raise ValueError(f"max_add must be >= 0 or None, got {self.max_add}")
         if self.verify < 1:
             raise ValueError(f"verify must be >= 1, got {self.verify}")
+        if self.max_candidates is not None and self.max_candidates < 1:
+            raise ValueError(f"max_candidates must be >= 1 or None, got {self.max_candidates}")
+        if self.time_s is not None and not self.time_s > 0:
+            raise ValueError(f"time_s must be > 0 or None, got {self.time_s}")
+
+    def budget(self, n: int) -> int:
+        """Most bricks a repair of an ``n``-brick layout may add."""
+        return max(4, -(-n // 4)) if self.max_add is None else self.max_add
+
+    def candidate_cap(self, clusters: int) -> int:
+        """Most candidates per step when ``clusters`` clusters of bricks fail."""
+        if self.max_candidates is not None:
+            return self.max_candidates
+        return min(max(48, _PER_CLUSTER * clusters), 480)
 
 
 @dataclasses.dataclass
@@ -196,16 +223,67 @@ def exact_loss(a: Analysis) -> float:
     return float(over + unbalanced)
 
 
-def _weak_order(a: Analysis, k: int) -> list[int]:
-    """Brick indices, weakest first: failing bricks (by drag), then by score; at most k
-    plus all failing ones."""
+def _failing_clusters(a: Analysis) -> list[list[int]]:
+    """Failing bricks in clusters (bricks joined by knob or side contacts),
+    each cluster weakest first (floating clusters lowest first: a pillar
+    under their lowest brick grounds them all), clusters by their weakest
+    brick."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    layout = a.layout
+    keys = layout.keys
+    score = np.array([a.scores[q] for q in keys])
+    drag = np.array([a.max_drag[q] for q in keys])
+    failing = np.flatnonzero(score >= 1.0)
+    if not len(failing):
+        return []
+    ids = layout.occupancy()
+    fail = np.zeros(layout.n + 1, bool)
+    fail[failing] = True
+    pairs = []
+    for ax in range(3):
+        lo = np.moveaxis(ids, ax, 0)[:-1]
+        hi = np.moveaxis(ids, ax, 0)[1:]
+        m = (lo >= 0) & (hi >= 0) & (lo != hi)
+        m &= fail[lo] & fail[hi]
+        pairs.append(np.stack([lo[m], hi[m]], axis=1))
+    pr = np.concatenate(pairs)
+    g = coo_matrix((np.ones(len(pr)), (pr[:, 0], pr[:, 1])), shape=(layout.n, layout.n))
+    _, lab = connected_components(g, directed=False)
+    floating = np.asarray(floating_bricks(a.model))[: layout.n]
+    rank = np.empty(layout.n, np.int64)
+    rank[np.lexsort((-drag, -score))] = np.arange(layout.n)
+    groups: dict = {}
+    for i in failing.tolist():
+        groups.setdefault(int(lab[i]), []).append(i)
+    out = []
+    for members in groups.values():
+        if floating[members].all():
+            members.sort(key=lambda i: (int(layout.pos[i, 2]), rank[i]))
+        else:
+            members.sort(key=lambda i: rank[i])
+        out.append(members)
+    out.sort(key=lambda m: min(rank[i] for i in m))
+    return out
+
+
+def _weak_order(a: Analysis, k: int) -> tuple[list[int], list[int]]:
+    """(bricks, their cluster ids): the failing bricks, in turn over the
+    failing clusters (ids 0, 1, ..., each cluster's weakest first), then the
+    weakest standing bricks up to ``k`` in all (ids -1, -2, ...: each its own)."""
+    clusters = _failing_clusters(a)
+    bricks, cid = [], []
+    for r in range(max((len(m) for m in clusters), default=0)):
+        for c, members in enumerate(clusters):
+            if r < len(members):
+                bricks.append(members[r])
+                cid.append(c)
     keys = a.layout.keys
     score = np.array([a.scores[q] for q in keys])
     drag = np.array([a.max_drag[q] for q in keys])
-    order = np.lexsort((-drag, -score))
-    failing = [int(i) for i in order if score[i] >= 1.0]
-    rest = [int(i) for i in order if score[i] < 1.0]
-    return (failing + rest)[: max(k, len(failing))] if failing else rest[:k]
+    rest = [int(i) for i in np.lexsort((-drag, -score)) if score[i] < 1.0][: max(k - len(bricks), 0)]
+    return bricks + rest, cid + [-1 - j for j in range(len(rest))]
 
 
 # --------------------------------------------------------------------------
@@ -281,24 +359,38 @@ def _carried(layout: Layout, owner: dict, b: int) -> list[int]:
 
 def propose(layout: Layout, analysis: Analysis, opts: RepairOptions, budget: int | None = None) -> list[Candidate]:
     """Candidate units around the weakest bricks of ``layout`` (see the module
-    docstring), at most ``opts.max_candidates``, each of at most ``budget``
-    bricks (default ``opts.max_add``); none overlaps the layout or leaves the
-    region."""
-    budget = opts.max_add if budget is None else budget
+    docstring), at most ``opts.candidate_cap(clusters)``, each of at most
+    ``budget`` bricks (default ``opts.budget(layout.n)``); none overlaps the
+    layout or leaves the region."""
+    return _propose(layout, analysis, opts, budget)[0]
+
+
+def _propose(layout: Layout, analysis: Analysis, opts: RepairOptions, budget: int | None = None):
+    """(candidates, the failing cluster each was proposed for)."""
+    budget = opts.budget(layout.n) if budget is None else budget
     if budget <= 0:
-        return []
+        return [], []
     space = _Space(layout, opts.region)
     seen: set = set()
     out: list[Candidate] = []
+    target: list[int] = []
+    weak, cid = _weak_order(analysis, opts.weak)
+    n_clusters = max(len(set(cid)), 1)
+    cap = opts.candidate_cap(n_clusters)
+    per_cluster = max(cap // n_clusters, 1)
+    count: dict = {}
+    current = [0]  # the cluster being served
 
     def add(bricks, kind, note, replaces=-1):
         key = (frozenset(bricks), replaces)
-        if key in seen or len(bricks) > budget or len(out) >= opts.max_candidates:
+        c = current[0]
+        if key in seen or len(bricks) > budget or len(out) >= cap or count.get(c, 0) >= per_cluster:
             return
         seen.add(key)
+        count[c] = count.get(c, 0) + 1
         out.append(candidate_brick(bricks, kind=kind, replaces=replaces, note=note))
+        target.append(c)
 
-    weak = _weak_order(analysis, opts.weak)
     grid_occ = space.occ
     owner = _owner_grid(layout)
 
@@ -333,7 +425,12 @@ def propose(layout: Layout, analysis: Analysis, opts: RepairOptions, budget: int
         for _, _, _, bricks in sorted(sups, key=lambda t: t[:3])[:_PER_TARGET]:
             add(bricks, "support", note)
 
-    for b in weak:
+    for b, c in zip(weak, cid):
+        current[0] = c
+        if len(out) >= cap:
+            break
+        if count.get(c, 0) >= per_cluster:
+            continue
         x, y, z, sx, sy = _footprint(layout, b)
         key = layout.keys[b]
         # supports under b itself, then under the overhanging bricks whose
@@ -384,7 +481,7 @@ def propose(layout: Layout, analysis: Analysis, opts: RepairOptions, budget: int
                                      if not (x <= nx + i < x + sx and y <= ny + j < y + sy)]
                         if all(space.free(*c) for c in new_cells):
                             add([(nx, ny, z, nsx, nsy)], "replace", f"longer brick for {key!r}", replaces=b)
-    return out
+    return out, target
 
 
 # --------------------------------------------------------------------------
@@ -464,16 +561,41 @@ def _finish(method, layout, original, changes, before, after, exact_calls, soft_
                         exact_calls=exact_calls, soft_calls=soft_calls, time_s=time.perf_counter() - t0)
 
 
+def _combined(cands, target, per_brick, room: int) -> list[int]:
+    """The best-ranked helpful candidate (negative gradient per brick) of each
+    failing cluster (``target`` >= 0), best first, skipping replacements and
+    any that overlaps one already taken, at most ``room`` bricks in all."""
+    best: dict = {}
+    for i in np.argsort(per_brick, kind="stable").tolist():
+        if per_brick[i] < 0.0 and cands[i].replaces < 0 and target[i] >= 0:
+            best.setdefault(target[i], []).append(i)
+    picks, cells, used = [], set(), 0
+    for c in sorted(best, key=lambda c: per_brick[best[c][0]]):
+        for i in best[c]:
+            ci = cands[i].cells()
+            if used + cands[i].k <= room and not (ci & cells):
+                picks.append(i)
+                cells |= ci
+                used += cands[i].k
+                break
+    return picks
+
+
 def _search(layout: Layout, opts: RepairOptions, method: str) -> RepairResult:
     t0 = time.perf_counter()
+    deadline = None if opts.time_s is None else t0 + opts.time_s
     original = layout
     current = _exact(layout, opts)
     before = current
     exact_calls, soft_calls = 1, 0
     changes: list[Change] = []
-    used = 0
-    while not current.stable and used < opts.max_add:
-        cands = propose(layout, current, opts, budget=opts.max_add - used)
+    used, budget = 0, opts.budget(layout.n)
+
+    def out_of_time():
+        return deadline is not None and time.perf_counter() > deadline
+
+    while not current.stable and used < budget and not out_of_time():
+        cands, target = _propose(layout, current, opts, budget=budget - used)
         if not cands:
             break
         base_loss = exact_loss(current)
@@ -491,11 +613,31 @@ def _search(layout: Layout, opts: RepairOptions, method: str) -> RepairResult:
         trials = []
         for picks in batches:
             for i in picks:
+                if trials and out_of_time():
+                    break
                 a = _exact(apply_candidates(layout, [cands[i]], fresh_keys(layout.keys, cands[i].k)), opts)
                 exact_calls += 1
                 trials.append((i, cands[i], a, exact_loss(a) - base_loss))
-            if any(t[2].stable or t[3] < 0.0 for t in trials):
+            if any(t[2].stable or t[3] < 0.0 for t in trials) or out_of_time():
                 break
+        if method == "gradient" and opts.combine and not any(t[2].stable for t in trials) and not out_of_time():
+            # several clusters fail and no single unit makes the layout stand:
+            # the best of each cluster together, taken if it stands or gains more
+            combo = _combined(cands, target, per_brick, budget - used)
+            if len(combo) >= 2:
+                picked = [cands[i] for i in combo]
+                k = sum(c.k for c in picked)
+                keys = fresh_keys(layout.keys, k)
+                a = _exact(apply_candidates(layout, picked, keys), opts)
+                exact_calls += 1
+                if a.stable or exact_loss(a) - base_loss < min(t[3] for t in trials):
+                    layout = apply_candidates(layout, picked, keys)
+                    for i in combo:
+                        ck, keys = keys[:cands[i].k], keys[cands[i].k:]
+                        changes.append(Change(candidate=cands[i], keys=ck, score=float(per_brick[i])))
+                    used += k
+                    current = a
+                    continue
         i, cand, a, drop = _choose(trials)
         if not a.stable and drop >= 0.0:
             break  # nothing helps

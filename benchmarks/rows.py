@@ -1,0 +1,28 @@
+"""Resumable JSON-lines results of the benchmark scripts."""
+import json
+import os
+
+
+def read_rows(path: str, key: str) -> dict:
+    """{row[key]: row} of a JSON-lines file written a row at a time (later
+    rows win); a torn last line (a killed run) is skipped. {} when the file
+    does not exist."""
+    out: dict = {}
+    if not os.path.exists(path):
+        return out
+    with open(path) as fh:
+        for line in fh:
+            if not line.endswith("\n"):
+                continue  # torn by a kill: that row is redone
+            try:
+                row = json.loads(line)
+            except ValueError:
+                continue
+            out[row[key]] = row
+    return out
+
+
+def append_row(path: str, row: dict) -> None:
+    """Append one row (one line) and flush it."""
+    with open(path, "a") as fh:
+        fh.write(json.dumps(row) + "\n")
