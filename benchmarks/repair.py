@@ -131,7 +131,7 @@ def mesh_layout(name: str):
 
 
 def large_layouts(n: int, max_bricks: int, set_file: str):
-    """(name, layout) of the first ``n`` unstable mesh layouts of at most
+    """Yields (name, layout) of the first ``n`` unstable mesh layouts of at most
     ``max_bricks`` bricks, configurations in a seeded random order; each
     configuration's verdict is kept in ``set_file``."""
     from stablelego_jax.generate.mesh import MESH_SUFFIXES
@@ -140,9 +140,9 @@ def large_layouts(n: int, max_bricks: int, set_file: str):
     names = [f"mesh/{f}/g{g}/{up}" for f in files for g in LARGE_GRIDS for up in UPS]
     names = [names[i] for i in np.random.default_rng(19).permutation(len(names))]
     seen = read_rows(set_file, "name")
-    out = []
+    found = 0
     for name in names:
-        if len(out) >= n:
+        if found >= n:
             break
         row = seen.get(name)
         if row is not None and (row["n_bricks"] > max_bricks or row["stable"]):
@@ -157,8 +157,8 @@ def large_layouts(n: int, max_bricks: int, set_file: str):
             print(f"  set: {name}: {lay.n} bricks, " + ("too many" if row["stable"] is None else
                   "stands" if row["stable"] else f"{row['failing']} failing"), file=sys.stderr, flush=True)
         if lay.n <= max_bricks and not row["stable"]:
-            out.append((name, lay))
-    return out
+            found += 1
+            yield name, lay
 
 
 def run(name, lay, opts: RepairOptions, methods=tuple(METHODS), row=None) -> dict:

@@ -153,3 +153,13 @@ def test_allow_support_adds_bricks_outside_the_shape_when_no_cover_stands():
     full[lo[0]:lo[0] + v.shape[0], lo[1]:lo[1] + v.shape[1], lo[2]:lo[2] + v.shape[2]] = v
     assert full[:6, :6, :5][vox].all()  # every cell of the shape kept
     assert (full[:6, :6, :5] & ~vox).any()  # and the support outside it
+
+
+@pytest.mark.parametrize("value", ["0", "-5", "soon"])
+def test_cli_time_must_be_positive_seconds(tmp_path, capsys, value):
+    src = tmp_path / "v.npy"
+    np.save(src, np.ones((2, 2, 2), bool))
+    with pytest.raises(SystemExit) as exc:
+        main(["stabilize", str(src), "--out", str(tmp_path / "o.json"), "--time", value])
+    assert exc.value.code == 2 and value in capsys.readouterr().err
+    assert not (tmp_path / "o.json").exists()

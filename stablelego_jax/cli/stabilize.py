@@ -6,7 +6,7 @@ import json
 import os
 import sys
 
-from .common import int_at_least, report_error
+from .common import int_at_least, positive_seconds, report_error
 
 __all__ = ["add_parser", "cmd_stabilize", "read_shape"]
 
@@ -31,7 +31,7 @@ def add_parser(sub) -> None:
     s.add_argument("--out", required=True, metavar="OUT", help="the stable layout (StableLego JSON)")
     s.add_argument("--seeds", type=int_at_least(1), default=20, help="heuristic tie-break seeds tried first (default 20)")
     s.add_argument("--rounds", type=int_at_least(0), default=40, help="re-merge rounds at most (default 40)")
-    s.add_argument("--time", type=float, default=600.0, metavar="S", help="time budget in seconds (default 600)")
+    s.add_argument("--time", type=positive_seconds, default=600.0, metavar="S", help="time budget in seconds (default 600)")
     s.add_argument("--reach", type=int_at_least(0), default=2,
                    help="studs around a failing brick whose bricks are re-merged (default 2)")
     s.add_argument("--no-gradient", action="store_true", help="random re-merges only (no gradient move)")

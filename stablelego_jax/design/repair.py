@@ -17,8 +17,12 @@ One repair step:
    (most negative gradient per added brick), then the best-ranked of each
    unit size, smallest first; a stable one with the fewest bricks is taken,
    else the one that lowers the exact overload most per brick (if none of
-   them lowers it, the next ``verify``, at most three rounds); repeat until
-   the layout stands or ``max_add`` bricks are spent.
+   them lowers it, the next ``verify``, at most three rounds); when several
+   clusters of bricks fail and no single unit makes the layout stand, the
+   best-ranked unit of each cluster is checked together and taken if it
+   stands or lowers the overload more; repeat until the layout stands, the
+   brick budget (``max_add``, default max(4, n / 4)) is spent or ``time_s``
+   runs out.
 
 User bricks are never moved or deleted unless ``allow_remove`` (then only
 by a replacement), candidates never overlap the layout, and every new cell
