@@ -103,8 +103,9 @@ class Candidate:
     pos: (k, 3) corner cells; size: (k, 2) extents (studs along x, y);
     mass: (k,) kg; brick_id: library ids ("" = the real brick of that size);
     ori: (k,) StableLego orientation; kind: "support", "bridge",
-    "replace", ... (for reports); replaces: index of the base brick this
-    unit replaces (-1: none; only ``--allow-remove`` repairs use it);
+    "replace", "remerge", ... (for reports); replaces: indices of the base
+    bricks this unit replaces (empty: none; only ``--allow-remove`` repairs
+    use it);
     note: human-readable description.
     """
 
@@ -114,7 +115,7 @@ class Candidate:
     brick_id: tuple
     ori: np.ndarray
     kind: str = "support"
-    replaces: int = -1
+    replaces: tuple = ()
     note: str = ""
 
     @property
@@ -130,14 +131,16 @@ class Candidate:
         return out
 
 
-def candidate_brick(bricks: Sequence[tuple], kind: str = "support", replaces: int = -1, note: str = "") -> Candidate:
+def candidate_brick(bricks: Sequence[tuple], kind: str = "support", replaces: Sequence[int] = (),
+                    note: str = "") -> Candidate:
     """A candidate of real (Table I) bricks given as ``(x, y, z, sx, sy)``
-    tuples; masses, library ids and ori from the StableLego library."""
+    tuples; masses, library ids and ori from the StableLego library;
+    ``replaces``: indices of the base bricks it takes the place of."""
     arr = np.asarray(bricks, np.int64).reshape(-1, 5)
     mass, bids, oris = table_i_bricks(arr[:, 3:])
     return Candidate(
         pos=arr[:, :3], size=arr[:, 3:], mass=mass, brick_id=bids, ori=oris,
-        kind=kind, replaces=int(replaces), note=note,
+        kind=kind, replaces=tuple(sorted(int(i) for i in replaces)), note=note,
     )
 
 
@@ -173,9 +176,7 @@ class SoftLayout:
         w[: self.n_base] = 1.0
         for k in present:
             w[self.unit_bricks[k]] = 1.0
-            r = self.candidates[k].replaces
-            if r >= 0:
-                w[r] = 0.0
+            w[list(self.candidates[k].replaces)] = 0.0
         return w
 
     def layout_with(self, chosen: Sequence[int], keys: Sequence[str] | None = None) -> Layout:
@@ -203,7 +204,7 @@ def apply_candidates(base: Layout, cands: Sequence[Candidate], keys: Sequence[st
     """``base`` plus the bricks of ``cands`` (minus the base bricks they replace),
     validated (LayoutError on overlap). Base bricks keep their keys and
     data; new bricks get ``keys`` or fresh keys."""
-    drop = {c.replaces for c in cands if c.replaces >= 0}
+    drop = {r for c in cands for r in c.replaces}
     keep = [i for i in range(base.n) if i not in drop]
     k_new = sum(c.k for c in cands)
     if keys is None:
@@ -256,8 +257,7 @@ def compile_soft(layout: Layout, candidates: Sequence[Candidate] = (), params: P
         lo = cpos.min(axis=0) - 1
         hi = (cpos + np.concatenate([csize, np.ones((k, 1), np.int64)], axis=1)).max(axis=0) + 1
         near = np.nonzero(((hi_all > lo) & (lo_all < hi)).all(axis=1))[0]
-        if c.replaces >= 0:
-            near = near[near != c.replaces]
+        near = near[~np.isin(near, c.replaces)]
         sub_keys = [f"b{i}" for i in near] + [f"c{j}" for j in range(k)]
         try:
             sub = make_layout(

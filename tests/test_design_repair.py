@@ -63,14 +63,14 @@ def test_candidates_respect_region_and_remove():
         for c in cands:
             cells = set(map(tuple, cells_of(c.pos, c.size)[0].tolist()))
             assert not cells & occ  # never overlaps the layout
-            assert c.replaces == -1 and c.k <= RepairOptions().budget(lay.n) == 5  # 20 bricks: max(4, 20 / 4)
+            assert c.replaces == () and c.k <= RepairOptions().budget(lay.n) == 5  # 20 bricks: max(4, 20 / 4)
             if region == "bbox":
                 assert _in_bbox(lay, c.pos, c.size)
             if region == "shape":
                 assert all((x, y) in columns and z <= zmax for x, y, z in cells)
     assert not any(c.kind == "replace" for c in propose(lay, a, RepairOptions()))
     repl = [c for c in propose(lay, a, RepairOptions(allow_remove=True)) if c.kind == "replace"]
-    assert repl and all(c.replaces >= 0 and c.k == 1 for c in repl)
+    assert repl and all(len(c.replaces) == 1 and c.k == 1 for c in repl)
     assert propose(lay, a, RepairOptions(max_add=0)) == []
 
 
@@ -193,3 +193,31 @@ def test_cli_errors_and_stable_input(tmp_path, capsys):
     assert main(["repair", os.path.join(REF, "stair_19.json"), "--out", str(out)]) == 0
     assert "nothing to repair" in capsys.readouterr().out
     assert json.load(open(out)) == json.load(open(os.path.join(REF, "stair_19.json")))
+
+
+def test_remerge_joins_a_hanging_brick_into_its_row():
+    # a 1x1 post carries a 2x1 brick; a second 2x1 hangs beside it, held by
+    # nothing (side contacts carry no weight); with 1x4 bricks only and the
+    # bounding box, no support or bridge fits: only re-merging the row helps
+    lay = brick_layout([(1, 0, 0), (0, 0, 1), (2, 0, 1)], [(1, 1), (2, 1), (2, 1)])
+    only4 = ((1, 4), (4, 1))
+    r = repair(lay, RepairOptions(allow_remove=True, sizes=only4))
+    assert r.stable and [c.candidate.kind for c in r.changes] == ["remerge"] and r.removed == ["2", "3"]
+    new = r.layout.subset([r.layout.keys.index(k) for k in r.changes[0].keys])
+    assert new.pos.tolist() == [[0, 0, 1]] and new.size.tolist() == [[4, 1]]
+    assert not repair(lay, RepairOptions(sizes=only4)).stable  # without --allow-remove nothing fits
+
+
+def test_remerge_candidates_cover_the_row_exactly_with_new_joints():
+    # two layers of three 2x1 bricks, joints stacked at x = 2 and 4
+    pos = [(x, 0, z) for z in (0, 1) for x in (0, 2, 4)]
+    lay = brick_layout(pos, [(2, 1)] * 6)
+    a = analyze_layout(lay, solver="exact")
+    rem = [c for c in propose(lay, a, RepairOptions(allow_remove=True, weak=6)) if c.kind == "remerge"]
+    assert rem
+    for c in rem:
+        old = set(map(tuple, cells_of(lay.pos[list(c.replaces)], lay.size[list(c.replaces)])[0].tolist()))
+        assert c.cells() == old and len(c.replaces) >= 2  # the same cells, several bricks
+        assert sorted(c.pos[:, 0].tolist()) != sorted(lay.pos[list(c.replaces), 0].tolist())  # other joints
+    # the whole top row as one 6x1 brick (no joint left) is among them
+    assert any(c.replaces == (3, 4, 5) and c.size.tolist() == [[6, 1]] for c in rem)

@@ -80,7 +80,7 @@ def test_candidates_may_overlap_each_other_but_not_the_layout():
 def test_replacement_candidate_is_compiled_without_the_replaced_brick():
     lay = load_layout(STAIR20)
     # brick '2' (2x4 along x at (2,21,1)) replaced by a 2x6 reaching back over brick '1'
-    c = candidate_brick([(0, 21, 1, 6, 2)], kind="replace", replaces=1)
+    c = candidate_brick([(0, 21, 1, 6, 2)], kind="replace", replaces=[1])
     soft = compile_soft(lay, [c])
     new = soft.unit_bricks[0][0]
     cb = soft.problem.col_brick

@@ -32,7 +32,8 @@ def add_parser(sub) -> None:
     r.add_argument("--time", type=positive_seconds, default=None, metavar="S",
                    help="wall-time budget in seconds (default: none)")
     r.add_argument("--allow-remove", action="store_true",
-                   help="allow replacing a user brick by a longer one (otherwise user bricks are never touched)")
+                   help="allow replacing a user brick by a longer one, or a weak brick's row by a re-merge of it "
+                        "(otherwise user bricks are never touched)")
     r.add_argument("--png", metavar="P", help="before/after heat maps (PNG)")
     r.add_argument("--html", metavar="P", help="before/after 3D heat map page (a slider between the two)")
     r.add_argument("--library", help="brick library JSON of IN (default: the StableLego library)")

@@ -8,7 +8,10 @@ One repair step:
    under them (a brick in the layer below, carried down to the baseplate or
    to the first brick below as a pillar), bridging bricks across their
    joints with side neighbours (in the layer above or below), and, with
-   ``allow_remove``, a longer brick replacing a weak one;
+   ``allow_remove``, a longer brick replacing a weak one or the weak brick's
+   row (it and its neighbours along its long axis, same cross-section, at
+   most 16 studs) re-merged into bricks whose joints are bridged by the
+   layers above and below;
 3. :func:`rank` compiles the layout and all candidates into one soft layout
    (:mod:`stablelego_jax.soft`, candidates at weight 0) and takes the
    gradient of :func:`stablelego_jax.loss.stability_loss` with respect to
@@ -146,7 +149,7 @@ class Change:
 
     candidate: Candidate
     keys: list
-    removed: str | None = None
+    removed: tuple = ()  # keys of the original bricks it replaced
     score: float = float("nan")  # gradient (per brick) that ranked it; NaN for greedy
 
     def describe(self) -> str:
@@ -154,8 +157,8 @@ class Change:
         for k, (x, y, z), (sx, sy) in zip(self.keys, self.candidate.pos.tolist(), self.candidate.size.tolist()):
             parts.append(f"brick {k!r} {sx}x{sy} at ({x},{y},{z})")
         what = f"{self.candidate.kind}: " + ", ".join(parts)
-        if self.removed is not None:
-            what += f" replacing brick {self.removed!r}"
+        if self.removed:
+            what += " replacing brick" + ("s " if len(self.removed) > 1 else " ") + ", ".join(map(repr, self.removed))
         if self.candidate.note:
             what += f" ({self.candidate.note})"
         return what
@@ -190,7 +193,7 @@ class RepairResult:
 
     @property
     def removed(self) -> list:
-        return [c.removed for c in self.changes if c.removed is not None]
+        return [k for c in self.changes for k in c.removed]
 
     @property
     def kept(self) -> float:
@@ -385,8 +388,8 @@ def _propose(layout: Layout, analysis: Analysis, opts: RepairOptions, budget: in
     count: dict = {}
     current = [0]  # the cluster being served
 
-    def add(bricks, kind, note, replaces=-1):
-        key = (frozenset(bricks), replaces)
+    def add(bricks, kind, note, replaces=()):
+        key = (frozenset(bricks), tuple(sorted(replaces)))
         c = current[0]
         if key in seen or len(bricks) > budget or len(out) >= cap or count.get(c, 0) >= per_cluster:
             return
@@ -484,8 +487,86 @@ def _propose(layout: Layout, analysis: Analysis, opts: RepairOptions, budget: in
                         new_cells = [(nx + i, ny + j, z) for i in range(nsx) for j in range(nsy)
                                      if not (x <= nx + i < x + sx and y <= ny + j < y + sy)]
                         if all(space.free(*c) for c in new_cells):
-                            add([(nx, ny, z, nsx, nsy)], "replace", f"longer brick for {key!r}", replaces=b)
+                            add([(nx, ny, z, nsx, nsy)], "replace", f"longer brick for {key!r}", replaces=(b,))
+            for bricks, row in _remerges(layout, owner, b, opts):
+                add(bricks, "remerge", f"brick {key!r} and its row re-merged", replaces=row)
     return out, target
+
+
+def _splits(length: int, parts: Sequence[int], most: int) -> list[tuple]:
+    """Every ordered split of ``length`` into at most ``most`` pieces of ``parts``."""
+    out, stack = [], [((), 0)]
+    while stack:
+        pre, tot = stack.pop()
+        if tot == length:
+            out.append(pre)
+            continue
+        if len(pre) < most:
+            stack.extend((pre + (p,), tot + p) for p in parts if tot + p <= length)
+    return out
+
+
+def _remerges(layout: Layout, owner: dict, b: int, opts: RepairOptions, per_row: int = 4):
+    """Re-merges of weak brick ``b`` (``allow_remove``): ``b`` and the bricks
+    next to it along its long axis with the same cross-section (a row, at
+    most 16 studs) re-split into Table I bricks whose joints lie under or
+    over a brick of the layers above and below (bridged joints). Yields
+    (bricks, replaced indices), at most ``per_row`` splits per row, fewest
+    unbridged joints first, then fewest bricks."""
+    x, y, z, sx, sy = _footprint(layout, b)
+    along = 0 if sx >= sy else 1
+    width = sy if along == 0 else sx
+    if width > 2:
+        return
+    lo_w = y if along == 0 else x  # the cross-section: lo_w .. lo_w + width - 1
+
+    def cell(a, w, zz):  # (along, across, layer) -> grid cell
+        return (a, w, zz) if along == 0 else (w, a, zz)
+
+    def same_section(q):
+        qx, qy, qz, qsx, qsy = _footprint(layout, q)
+        return qz == z and ((qy, qsy) == (y, sy) if along == 0 else (qx, qsx) == (x, sx))
+
+    row = [b]
+    start, end = (x, x + sx) if along == 0 else (y, y + sy)
+    for step in (-1, 1):
+        while end - start < 16:
+            q = owner.get(cell(start - 1 if step < 0 else end, lo_w, z))
+            if q is None or not same_section(q):
+                break
+            qlen = int(layout.size[q, along])
+            if end - start + qlen > 16:
+                break
+            row.append(q)
+            start, end = (start - qlen, end) if step < 0 else (start, end + qlen)
+    if len(row) < 2:
+        return
+    parts = [n for n in range(1, 9)
+             if (min(n, width), max(n, width)) in TABLE_I_MASS_KG
+             and opts.allowed(*((n, width) if along == 0 else (width, n)))]
+    cur = sorted(int(layout.pos[q, along]) for q in row)[1:]  # the row's joints now
+
+    def bridged(cut):
+        for zz in (z - 1, z + 1):
+            for w in range(lo_w, lo_w + width):
+                a, c = owner.get(cell(cut - 1, w, zz)), owner.get(cell(cut, w, zz))
+                if a is not None and a == c:
+                    return True
+        return False
+
+    ranked = []
+    for split in _splits(end - start, parts, len(row) + 1):
+        cuts = list(np.cumsum(split)[:-1] + start)
+        if cuts == cur:
+            continue
+        ranked.append((sum(not bridged(c) for c in cuts), len(split), split))
+    ranked.sort()
+    for _, _, split in ranked[:per_row]:
+        bricks, a = [], start
+        for n in split:
+            bricks.append((a, lo_w, z, n, width) if along == 0 else (lo_w, a, z, width, n))
+            a += n
+        yield bricks, tuple(row)
 
 
 # --------------------------------------------------------------------------
@@ -521,8 +602,8 @@ def rank(layout: Layout, cands: Sequence[Candidate], opts: RepairOptions,
         g = np.asarray(g)
     scores = g[soft.unit_index].copy()
     for k, c in enumerate(cands):
-        if c.replaces >= 0:
-            scores[k] -= g[c.replaces]
+        if c.replaces:
+            scores[k] -= g[list(c.replaces)].sum()
     return scores, float(val)
 
 
@@ -571,7 +652,7 @@ def _combined(cands, target, per_brick, room: int) -> list[int]:
     any that overlaps one already taken, at most ``room`` bricks in all."""
     best: dict = {}
     for i in np.argsort(per_brick, kind="stable").tolist():
-        if per_brick[i] < 0.0 and cands[i].replaces < 0 and target[i] >= 0:
+        if per_brick[i] < 0.0 and not cands[i].replaces and target[i] >= 0:
             best.setdefault(target[i], []).append(i)
     picks, cells, used = [], set(), 0
     for c in sorted(best, key=lambda c: per_brick[best[c][0]]):
@@ -646,7 +727,7 @@ def _search(layout: Layout, opts: RepairOptions, method: str) -> RepairResult:
         if not a.stable and drop >= 0.0:
             break  # nothing helps
         keys = fresh_keys(layout.keys, cand.k)
-        removed = layout.keys[cand.replaces] if cand.replaces >= 0 else None
+        removed = tuple(layout.keys[r] for r in cand.replaces)
         layout = apply_candidates(layout, [cand], keys)
         changes.append(Change(candidate=cand, keys=keys, removed=removed, score=float(per_brick[i])))
         used += cand.k
