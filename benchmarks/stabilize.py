@@ -43,6 +43,8 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 RESULTS = os.path.join(HERE, "results")
 Y_UP = {"bunny.ply", "chair_model.obj", "rabbit.obj", "target.obj", "tube.obj", "wallhole.obj"}
 KINDS = [k for k in SHAPE_KINDS if k != "floating"]
+# the search's version: 2 = random rounds first, then gradient rounds (session 13); rows without it: 1
+VERSION = 2
 GRIDS = (8, 10, 12, 16, 20)
 
 
@@ -63,6 +65,16 @@ def same_cells(layout, vox) -> bool:
     full = np.zeros_like(vox)
     full[lo[0]:lo[0] + v.shape[0], lo[1]:lo[1] + v.shape[1], lo[2]:lo[2] + v.shape[2]] |= v
     return bool((full == vox).all()) and int(v.sum()) == int(np.prod(layout.size, axis=1).sum())
+
+
+def run_search(vox, name: str, rounds: int, time_s: float) -> dict:
+    """One stabilize run: ``local`` (seed 0, random rounds only) or ``stabilize`` (defaults)."""
+    opts = (StabilizeOptions(seeds=1, gradient=False, rounds=rounds, time_s=time_s) if name == "local"
+            else StabilizeOptions(rounds=rounds, time_s=time_s))
+    r = stabilize(vox, opts)
+    return dict(stable=r.stable, failing=r.failing, exact_calls=r.exact_calls, soft_calls=r.soft_calls,
+                time_s=r.time_s, iou1=same_cells(r.layout, vox), how=r.method,
+                bricks_changed=r.bricks_changed, reason=r.reason)
 
 
 def run_methods(vox, rounds: int, time_s: float):
@@ -88,12 +100,8 @@ def run_methods(vox, rounds: int, time_s: float):
             break
     out["seeds"] = dict(stable=bool(best[1].stable), failing=merit(best[1])[0], exact_calls=calls,
                         time_s=time.perf_counter() - t0, iou1=same_cells(best[0], vox))
-    for name, opts in (("local", StabilizeOptions(seeds=1, gradient=False, rounds=rounds, time_s=time_s)),
-                       ("stabilize", StabilizeOptions(rounds=rounds, time_s=time_s))):
-        r = stabilize(vox, opts)
-        out[name] = dict(stable=r.stable, failing=r.failing, exact_calls=r.exact_calls, soft_calls=r.soft_calls,
-                         time_s=r.time_s, iou1=same_cells(r.layout, vox), how=r.method,
-                         bricks_changed=r.bricks_changed, reason=r.reason)
+    for name in ("local", "stabilize"):
+        out[name] = dict(run_search(vox, name, rounds, time_s), version=VERSION)
     return out
 
 
@@ -104,9 +112,24 @@ def main(argv=None):
     ap.add_argument("--rounds", type=int, default=12)
     ap.add_argument("--time", type=float, default=60.0, help="per shape and method (s)")
     ap.add_argument("--out", default=os.path.join(RESULTS, "stabilize.jsonl"))
+    ap.add_argument("--redo", choices=["local", "stabilize"],
+                    help="run this method again on the shapes already there where the heuristic falls "
+                         "(after a change to it); the rows are rewritten with the new result")
     args = ap.parse_args(argv)
     os.makedirs(os.path.dirname(args.out), exist_ok=True)
     done = read_rows(args.out, "shape")
+    if args.redo:
+        makers = dict(shapes(args.meshes, args.procedural))
+        redo = [r for r in done.values() if not r["methods"]["heuristic"]["stable"]
+                and r["methods"][args.redo].get("version") != VERSION and r["shape"] in makers]
+        for k, rec in enumerate(redo, 1):
+            rec["methods"][args.redo] = dict(run_search(makers[rec["shape"]](), args.redo, args.rounds, args.time),
+                                             version=VERSION)
+            append_row(args.out, rec)
+            print(f"[redo {k}/{len(redo)}] {rec['shape']}: {args.redo} "
+                  f"{'yes' if rec['methods'][args.redo]['stable'] else 'no'}", file=sys.stderr, flush=True)
+        summary(list(done.values()))
+        return
     todo = [(n, f) for n, f in shapes(args.meshes, args.procedural) if n not in done]
     for k, (name, make) in enumerate(todo, 1):
         vox = make()

@@ -25,9 +25,13 @@ one voxel shape (IoU 1, no overlaps, library bricks only):
    * **random moves**: randomised greedy covers of the region that prefer
      long bricks across the joints of the layers below and above;
 
-   the random covers come first in a round and the gradient move when
-   they find nothing better; each candidate layout is verified by the exact
-   solver and kept when it fails less (fewer failing bricks, then a smaller overload
+   first up to ``rounds`` rounds of random moves (cheap: a few exact
+   solves a round), then up to as many rounds that add the gradient move
+   (a soft solve per Adam step, a compile per new problem shape) to the
+   random ones, each started only while a quarter of the time budget
+   remains; the region grows while the rounds find nothing better. Each
+   candidate layout is verified by the exact solver and kept when it fails
+   less (fewer failing bricks, then a smaller overload
    :func:`~stablelego_jax.design.repair.exact_loss`);
 3. with ``allow_support``: if no cover stands within the budget, the fewest
    support bricks outside the shape (:func:`~stablelego_jax.design.repair.repair`).
@@ -58,8 +62,9 @@ __all__ = ["StabilizeOptions", "StabilizeResult", "stabilize", "layout_voxels", 
 class StabilizeOptions:
     """Budget and moves of :func:`stabilize`.
 
-    seeds: heuristic tie-break seeds tried first; rounds: re-merge rounds at
-    most; time_s: wall-clock budget (s; checked between exact solves);
+    seeds: heuristic tie-break seeds tried first; rounds: random re-merge
+    rounds at most, then (``gradient``) as many again with the gradient move;
+    time_s: wall-clock budget (s; checked between exact solves);
     reach: studs around a failing brick whose bricks are re-merged;
     random_moves: random covers tried per round; gradient: use the gradient
     move; steps / lr / lam: its Adam steps, step size and stability weight;
@@ -382,8 +387,11 @@ def stabilize(vox: np.ndarray, opts: StabilizeOptions = StabilizeOptions(), sour
     grad = _Gradient(opts) if opts.gradient else None
     rounds = 0
     stuck = 0
-    while rounds < opts.rounds and time.perf_counter() - t0 < opts.time_s and not best_a.stable and not lost.any():
+    max_rounds = opts.rounds * (2 if grad is not None else 1)
+    while rounds < max_rounds and time.perf_counter() - t0 < opts.time_s and not best_a.stable and not lost.any():
         rounds += 1
+        if rounds == opts.rounds + 1:
+            stuck = 0  # the gradient rounds start from the start region again
         base = best  # every move of this round re-covers the region of the round's start
         failing = _failing(best_a)
         # grow the region when the last rounds found nothing
@@ -400,13 +408,15 @@ def stabilize(vox: np.ndarray, opts: StabilizeOptions = StabilizeOptions(), sour
                 return True
             return False
 
-        # cheap random covers first; the gradient move (a soft solve per
-        # step) when they find nothing better
+        # cheap random covers; after the random rounds, the gradient move
+        # (a soft solve per step) when they find nothing better, begun only
+        # while a quarter of the budget remains (its compile cannot stop)
         for _ in range(opts.random_moves):
             if time.perf_counter() - t0 > opts.time_s or best_a.stable:
                 break
             improved |= attempt("random", _random_rank(base, region, pos, size, rng))
-        if not improved and grad is not None and time.perf_counter() - t0 < opts.time_s:
+        if (rounds > opts.rounds and not improved and not best_a.stable and grad is not None
+                and time.perf_counter() - t0 < 0.75 * opts.time_s):
             try:
                 p = grad.run(base, region, pos, size, rng, t0 + opts.time_s)
                 improved = attempt("gradient", np.argsort(-p, kind="stable"))
