@@ -131,17 +131,37 @@ def layout_voxels(layout: Layout, which: np.ndarray | None = None) -> tuple[np.n
     return vox, lo
 
 
-def ungroundable_cells(vox: np.ndarray) -> np.ndarray:
-    """(X, Y, Z) bool: cells that no cover can join to the ground: their
-    part of the shape (cells linked by a shared face: side by side in one
-    layer, which one brick can join, or one above the other) reaches no cell of
-    layer 0. Bricks on them float in every cover."""
-    from scipy import ndimage
+def ungroundable_cells(vox: np.ndarray, bricks: Sequence = DEFAULT_BRICKS) -> np.ndarray:
+    """(X, Y, Z) bool: cells that no cover with ``bricks`` can join to the
+    ground: no chain of library-brick placements inside the shape, each
+    resting on or carrying the one before (a cell of one directly above a
+    cell of the other), leads from them to layer 0. Bricks on them float in
+    every cover. (Side contacts carry no weight: a cell held only from the
+    side, farther out than the longest brick that fits reaches, is lost too.)
 
+    A fixed point over every placement of :func:`~.voxels.placements_in`:
+    a placement is grounded when it lies in layer 0 or one of its cells sits
+    on or under a cell of a grounded placement."""
     vox = np.asarray(vox, bool)
-    lab, n = ndimage.label(vox)  # 6-connectivity: the face neighbours
-    grounded = np.unique(lab[:, :, 0][vox[:, :, 0]])
-    return vox & ~np.isin(lab, grounded)
+    pos, size = placements_in(vox, oriented(bricks))
+    cells, owner = cells_of(pos, size)
+    shape = np.array(vox.shape)
+    flat = np.ravel_multi_index(cells.T, vox.shape)
+    nbr = []
+    for dz in (-1, 1):
+        z = cells[:, 2] + dz
+        ok = (z >= 0) & (z < shape[2])
+        nbr.append(np.where(ok, flat + dz, -1))  # z is the last axis: its stride is 1
+    grounded = np.zeros(vox.size + 1, bool)  # the last slot: "no neighbour"
+    grounded[np.ravel_multi_index(np.argwhere(vox[:, :, :1]).T, vox.shape)] = True
+    base = cells[:, 2] == 0
+    count = -1
+    while count != int(grounded.sum()):
+        count = int(grounded.sum())
+        touch = base | grounded[nbr[0]] | grounded[nbr[1]]
+        held = np.bincount(owner, weights=touch, minlength=len(pos)) > 0
+        grounded[flat[held[owner]]] = True
+    return vox & ~grounded[:-1].reshape(vox.shape)
 
 
 def _failing(a: Analysis) -> np.ndarray:
@@ -380,9 +400,9 @@ def stabilize(vox: np.ndarray, opts: StabilizeOptions = StabilizeOptions(), sour
         if a.stable:
             return out(lay, a, "seed", 0)
 
-    lost = ungroundable_cells(vox)
+    lost = ungroundable_cells(vox, opts.bricks)
     if lost.any():
-        say(f"{int(lost.sum())} cells touch nothing that leads to the ground: no cover can stand")
+        say(f"{int(lost.sum())} cells have no chain of bricks to the ground in any cover: no cover can stand")
     rng = np.random.default_rng(0)
     grad = _Gradient(opts) if opts.gradient else None
     rounds = 0
@@ -428,8 +448,9 @@ def stabilize(vox: np.ndarray, opts: StabilizeOptions = StabilizeOptions(), sour
             f" ({how}), {calls['exact']} exact solves")
     if best_a.stable:
         return out(best, best_a, how, rounds)
-    reason = (f"{int(lost.sum())} cells of the shape touch nothing that leads to the ground (no cover can "
-              "join them to it)") if lost.any() else _reason(best_a)
+    reason = (f"{int(lost.sum())} cells of the shape have no chain of bricks to the ground in any cover (no "
+              "brick that fits there rests on or carries one that leads to the ground)") if lost.any() \
+        else _reason(best_a)
     if opts.allow_support:
         say("no stable cover found; adding support bricks outside the shape")
         r = repair(best, RepairOptions(params=opts.params))
