@@ -227,6 +227,47 @@ def table(rows) -> str:
     return "\n".join(lines)
 
 
+def large_table(rows) -> str:
+    """The large set's table: every method over the layouts it ran on (greedy
+    may have run on the first ones only), with the gradient method on the
+    same layouts beside it."""
+    lines = ["| method | layouts | success | success keeping every original brick | bricks added (mean, median; "
+             "successes) | exact solves (mean) | differentiable solves (mean) | wall time (mean, median, max) | "
+             "original bricks kept (mean) |",
+             "|---|---|---|---|---|---|---|---|---|"]
+    grad = [r for r in rows if "gradient" in r]
+    for m in METHODS:
+        rs = [r for r in rows if m in r]
+        if not rs:
+            continue
+        subsets = [(m, rs)]
+        if m != "gradient" and len(rs) < len(grad):
+            subsets.append(("gradient, same layouts", [r for r in rs if "gradient" in r]))
+        for label, sub in subsets:
+            key = m if label == m else "gradient"
+            x = [r[key] for r in sub]
+            ok = [v["stable"] for v in x]
+            keep_all = [v["stable"] and v["kept"] == 1.0 for v in x]
+            add = [v["added"] for v in x if v["stable"]]
+            ts = [v["time_s"] for v in x]
+            lines.append(
+                f"| {label} | {len(x)} | {sum(ok)} ({100 * np.mean(ok):.1f}%) | {sum(keep_all)} "
+                f"({100 * np.mean(keep_all):.1f}%) | {np.mean(add) if add else float('nan'):.1f}, "
+                f"{np.median(add) if add else float('nan'):.0f} | {np.mean([v['exact_calls'] for v in x]):.1f} | "
+                f"{np.mean([v['soft_calls'] for v in x]):.2f} | {np.mean(ts):.1f} s, {np.median(ts):.1f} s, "
+                f"{max(ts):.1f} s | {100 * np.mean([v['kept'] for v in x]):.1f}% |")
+    n = [r["n_bricks"] for r in grad]
+    if n:
+        lines.append("")
+        lines.append(f"{len(grad)} layouts of {min(n)}-{max(n)} bricks (median {np.median(n):.0f}).")
+        comp = sum(r["gradient"]["compile_s"] for r in grad)
+        lines.append(f"gradient: {comp:.0f} s of its {sum(r['gradient']['time_s'] for r in grad):.0f} s wall "
+                     f"compiling ({sum(r['gradient']['compiles'] for r in grad)} executables).")
+        fails = [r["name"] for r in grad if not r["gradient"]["stable"]]
+        lines.append(f"gradient failures: {fails}")
+    return "\n".join(lines)
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--set", choices=["small", "large"], default="small")
@@ -267,7 +308,7 @@ def main():
                                         f"{row[m]['solver_calls']} calls {row[m]['time_s']:.1f}s"
                                         for m in missing), flush=True)
     rows = [r for r in done.values()][: args.n]
-    print(table(rows))
+    print(large_table(rows) if large else table(rows))
 
 
 if __name__ == "__main__":
