@@ -88,3 +88,96 @@ def test_cells_held_only_from_the_side_beyond_any_brick_are_ungroundable():
     assert np.argwhere(ungroundable_cells(vox, ((1, 2), (1, 1)))).tolist() == [[2, 0, 1], [3, 0, 1], [4, 0, 1]]
     vox[4, 0, 0] = True  # a second post under the far end grounds the whole row
     assert not ungroundable_cells(vox).any()
+
+
+def test_gradient_move_optimises_placements_and_decodes_an_exact_cover():
+    vox = _blob()
+    # one random round (no random moves), then one round with the gradient move
+    r = stabilize(vox, StabilizeOptions(seeds=1, random_moves=0, rounds=1, steps=2))
+    assert r.rounds == 2 and r.soft_calls == 2
+    assert _covers_exactly(r.layout, vox)
+    start = analyze_layout(r.start, solver="exact")
+    assert merit(analyze_layout(r.layout, solver="exact")) <= merit(start)
+
+
+def test_cli_writes_only_a_stable_layout(tmp_path, capsys):
+    vox = _blob()
+    src = tmp_path / "vox.npy"
+    np.save(src, vox)
+    out = tmp_path / "stable.json"
+    code = main(["stabilize", str(src), "--out", str(out), "--seeds", "1", "--no-gradient", "--json", "--quiet"])
+    rec = json.loads(capsys.readouterr().out)
+    assert code == 0 and rec["stable"] and rec["out"] == str(out) and rec["cells"] == int(vox.sum())
+    assert {"bricks_changed", "exact_calls", "soft_calls", "time_s"} <= set(rec)
+    lay = load_layout(str(out))
+    assert _covers_exactly(lay, vox) and analyze_layout(lay, solver="exact").stable
+    # a layout file as input: its cells, in its own coordinates
+    shifted = tmp_path / "shifted.json"
+    start = merge_voxels(vox, seed=0)
+    from stablelego_jax.formats.reader import write_layout
+    from stablelego_jax.layout import brick_layout
+
+    write_layout(brick_layout(start.pos + np.array([5, 7, 0]), start.size), str(shifted))
+    out2 = tmp_path / "stable2.json"
+    assert main(["stabilize", str(shifted), "--out", str(out2), "--seeds", "1", "--no-gradient", "--quiet"]) == 0
+    assert "STABLE" in capsys.readouterr().out
+    assert _covers_exactly(load_layout(str(out2)), vox, offset=(5, 7, 0))
+
+
+def test_cli_no_stable_cover_exit_1_nothing_written(tmp_path, capsys):
+    vox = np.zeros((6, 6, 5), bool)
+    vox[1:3, 1:3, 0:2] = True
+    vox[0:4, 0:4, 3] = True
+    src = tmp_path / "hover.npy"
+    np.save(src, vox)
+    out = tmp_path / "o.json"
+    assert main(["stabilize", str(src), "--out", str(out), "--seeds", "1", "--no-gradient", "--quiet"]) == 1
+    assert "no stable cover" in capsys.readouterr().out
+    assert not out.exists() and list(tmp_path.iterdir()) == [src]
+
+
+@pytest.mark.parametrize("content, msg", [(np.zeros((3, 3)), "3-D"), (np.zeros((3, 3, 3)), "no occupied"),
+                                          (np.full((2, 2, 2), 7), "0/1")])
+def test_cli_bad_voxel_grid_one_line_exit_2(tmp_path, capsys, content, msg):
+    src = tmp_path / "bad.npy"
+    np.save(src, content)
+    assert main(["stabilize", str(src), "--out", str(tmp_path / "o.json")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "bad.npy" in err and msg in err and len(err.splitlines()) == 1
+    assert not (tmp_path / "o.json").exists()
+
+
+def test_generated_object_keeps_the_stable_cover(tmp_path):
+    from stablelego_jax.generate.objects import generate_from_voxels
+
+    vox = _blob()
+    plain = generate_from_voxels(vox, str(tmp_path / "plain"))
+    r = generate_from_voxels(vox, str(tmp_path / "stable"), stabilize=StabilizeOptions(seeds=1, gradient=False))
+    assert not plain.stable and r.stable and r.n_voxels == plain.n_voxels
+    meta = json.loads((tmp_path / "stable" / "meta.json").read_text())
+    assert meta["stabilize"]["stable"] and meta["stabilize"]["method"] == "random"
+    assert _covers_exactly(load_layout(str(tmp_path / "stable")), vox)
+
+
+def test_allow_support_adds_bricks_outside_the_shape_when_no_cover_stands():
+    vox = np.zeros((6, 6, 5), bool)
+    vox[1:3, 1:3, 0:2] = True
+    vox[0:4, 0:4, 3] = True  # the slab hovers over layer 2
+    r = stabilize(vox, StabilizeOptions(seeds=1, gradient=False, allow_support=True))
+    assert r.stable and r.method == "support" and r.support_bricks >= 1
+    assert analyze_layout(r.layout, solver="exact").stable
+    v, lo = layout_voxels(r.layout)
+    full = np.zeros((8, 8, 8), bool)
+    full[lo[0]:lo[0] + v.shape[0], lo[1]:lo[1] + v.shape[1], lo[2]:lo[2] + v.shape[2]] = v
+    assert full[:6, :6, :5][vox].all()  # every cell of the shape kept
+    assert (full[:6, :6, :5] & ~vox).any()  # and the support outside it
+
+
+@pytest.mark.parametrize("value", ["0", "-5", "soon"])
+def test_cli_time_must_be_positive_seconds(tmp_path, capsys, value):
+    src = tmp_path / "v.npy"
+    np.save(src, np.ones((2, 2, 2), bool))
+    with pytest.raises(SystemExit) as exc:
+        main(["stabilize", str(src), "--out", str(tmp_path / "o.json"), "--time", value])
+    assert exc.value.code == 2 and value in capsys.readouterr().err
+    assert not (tmp_path / "o.json").exists()

@@ -5,8 +5,10 @@ one voxel shape (IoU 1, no overlaps, library bricks only):
 
 1. the heuristic merge (:func:`~stablelego_jax.generate.voxels.merge_voxels`)
    with ``seeds`` tie-break seeds; the first cover that stands by the exact
-   solver is the answer, otherwise the best one is the start;
-2. rounds of re-merging around the failing bricks: the *region* (the cells
+   solver is the answer;
+2. rounds of re-merging around the failing bricks (the random rounds walk
+   from the seed-0 merge, the gradient rounds from the best cover found by
+   then, a seed's or a round's): the *region* (the cells
    of the bricks within ``reach`` studs of a failing brick, in its layer and
    the layers just below and above) is covered anew while every other brick
    stays, by
@@ -385,6 +387,7 @@ def stabilize(vox: np.ndarray, opts: StabilizeOptions = StabilizeOptions(), sour
     grad = None
     start = merge_voxels(vox, seed=0, bricks=opts.bricks, source=source)
     a = check(start)
+    start_a = a
     best, best_a, how = start, a, "heuristic"
     say(f"heuristic merge: {start.n} bricks, {merit(a)[0]} failing")
     if a.stable:
@@ -408,23 +411,29 @@ def stabilize(vox: np.ndarray, opts: StabilizeOptions = StabilizeOptions(), sour
     rounds = 0
     stuck = 0
     max_rounds = opts.rounds * (2 if grad is not None else 1)
+    # the random rounds walk from the heuristic merge (the fewest failing
+    # bricks of a seed is a poor guide to what a re-merge can fix); the
+    # gradient rounds from the best cover found by then
+    cur, cur_a = start, start_a
     while rounds < max_rounds and time.perf_counter() - t0 < opts.time_s and not best_a.stable and not lost.any():
         rounds += 1
         if rounds == opts.rounds + 1:
-            stuck = 0  # the gradient rounds start from the start region again
-        base = best  # every move of this round re-covers the region of the round's start
-        failing = _failing(best_a)
+            cur, cur_a, stuck = best, best_a, 0
+        base = cur  # every move of this round re-covers the region of the round's start
+        failing = _failing(cur_a)
         # grow the region when the last rounds found nothing
         region = _region(base, failing, opts.reach + stuck)
         pos, size = _region_placements(base, region, types)
         improved = False
 
         def attempt(name, order):
-            nonlocal best, best_a, how
+            nonlocal best, best_a, how, cur, cur_a
             lay = recover_region(base, region, order, pos, size, types)
             a = check(lay)
             if merit(a) < merit(best_a):
                 best, best_a, how = lay, a, name
+            if merit(a) < merit(cur_a):
+                cur, cur_a = lay, a
                 return True
             return False
 
@@ -444,8 +453,8 @@ def stabilize(vox: np.ndarray, opts: StabilizeOptions = StabilizeOptions(), sour
                 say(f"gradient move failed ({type(exc).__name__}: {exc}); random moves only")
                 grad = None
         stuck = 0 if improved else min(stuck + 1, 4)
-        say(f"round {rounds}: region {int(region.sum())} bricks, {merit(best_a)[0]} failing"
-            f" ({how}), {calls['exact']} exact solves")
+        say(f"round {rounds}: region {int(region.sum())} bricks, {merit(cur_a)[0]} failing"
+            f" (best {merit(best_a)[0]}, {how}), {calls['exact']} exact solves")
     if best_a.stable:
         return out(best, best_a, how, rounds)
     reason = (f"{int(lost.sum())} cells of the shape have no chain of bricks to the ground in any cover (no "
