@@ -5,7 +5,8 @@ import json
 import os
 import sys
 
-__all__ = ["solver_for", "png_target", "report_error", "load_library", "int_at_least"]
+__all__ = ["solver_for", "png_target", "report_error", "load_library", "int_at_least", "int_or_auto",
+           "positive_seconds"]
 
 
 def int_at_least(lo: int):

@@ -10,8 +10,6 @@ from .common import int_at_least, positive_seconds, report_error
 
 __all__ = ["add_parser", "cmd_stabilize", "read_shape"]
 
-MESH_SUFFIXES = (".stl", ".obj", ".ply", ".off", ".glb", ".gltf")
-
 
 def add_parser(sub) -> None:
     from ..generate.mesh import FILL_MODES, UP_AXES
@@ -30,7 +28,7 @@ def add_parser(sub) -> None:
                    help="a layout file or dataset object folder (its cells), a vox.npy (X, Y, Z) grid, or a mesh")
     s.add_argument("--out", required=True, metavar="OUT", help="the stable layout (StableLego JSON)")
     s.add_argument("--seeds", type=int_at_least(1), default=20, help="heuristic tie-break seeds tried first (default 20)")
-    s.add_argument("--rounds", type=int_at_least(0), default=40, help="re-merge rounds at most (default 40)")
+    s.add_argument("--rounds", type=int_at_least(0), default=40, help="random re-merge rounds at most, then as many with the gradient move (default 40)")
     s.add_argument("--time", type=positive_seconds, default=600.0, metavar="S", help="time budget in seconds (default 600)")
     s.add_argument("--reach", type=int_at_least(0), default=2,
                    help="studs around a failing brick whose bricks are re-merged (default 2)")
@@ -70,9 +68,9 @@ def read_shape(path: str, grid: int = 20, up: str = "auto", fill: str = "auto", 
         if not vox.any():
             raise LayoutError(path, "the voxel grid has no occupied cell")
         return vox, np.zeros(3, np.int64)
-    if low.endswith(MESH_SUFFIXES) and not os.path.isdir(path):
-        from ..generate.mesh import voxelize
+    from ..generate.mesh import MESH_SUFFIXES, voxelize
 
+    if low.endswith(MESH_SUFFIXES) and not os.path.isdir(path):
         return voxelize(path, grid=grid, up=up, fill=fill).vox, np.zeros(3, np.int64)
     from ..formats.reader import load_layout
     from ..generate.stabilize import layout_voxels

@@ -230,19 +230,15 @@ def exact_loss(a: Analysis) -> float:
     return float(over + unbalanced)
 
 
-def _failing_clusters(a: Analysis) -> list[list[int]]:
-    """Failing bricks in clusters (bricks joined by knob or side contacts),
-    each cluster weakest first (floating clusters lowest first: a pillar
-    under their lowest brick grounds them all), clusters by their weakest
-    brick."""
+def _failing_clusters(a: Analysis, failing: np.ndarray, rank: np.ndarray) -> list[list[int]]:
+    """The ``failing`` bricks in clusters (bricks joined by knob or side
+    contacts), each cluster weakest first by ``rank`` (n,) (floating
+    clusters lowest first: a pillar under their lowest brick grounds them
+    all), clusters by their weakest brick."""
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
 
     layout = a.layout
-    keys = layout.keys
-    score = np.array([a.scores[q] for q in keys])
-    drag = np.array([a.max_drag[q] for q in keys])
-    failing = np.flatnonzero(score >= 1.0)
     if not len(failing):
         return []
     ids = layout.occupancy()
@@ -259,8 +255,6 @@ def _failing_clusters(a: Analysis) -> list[list[int]]:
     g = coo_matrix((np.ones(len(pr)), (pr[:, 0], pr[:, 1])), shape=(layout.n, layout.n))
     _, lab = connected_components(g, directed=False)
     floating = np.asarray(floating_bricks(a.model))[: layout.n]
-    rank = np.empty(layout.n, np.int64)
-    rank[np.lexsort((-drag, -score))] = np.arange(layout.n)
     groups: dict = {}
     for i in failing.tolist():
         groups.setdefault(int(lab[i]), []).append(i)
@@ -279,17 +273,20 @@ def _weak_order(a: Analysis, k: int) -> tuple[list[int], list[int]]:
     """(bricks, their cluster ids): the failing bricks, in turn over the
     failing clusters (ids 0, 1, ..., each cluster's weakest first), then the
     weakest standing bricks up to ``k`` in all (ids -1, -2, ...: each its own)."""
-    clusters = _failing_clusters(a)
+    keys = a.layout.keys
+    score = np.array([a.scores[q] for q in keys])
+    drag = np.array([a.max_drag[q] for q in keys])
+    order = np.lexsort((-drag, -score))  # weakest first
+    rank = np.empty(len(keys), np.int64)
+    rank[order] = np.arange(len(keys))
+    clusters = _failing_clusters(a, np.flatnonzero(score >= 1.0), rank)
     bricks, cid = [], []
     for r in range(max((len(m) for m in clusters), default=0)):
         for c, members in enumerate(clusters):
             if r < len(members):
                 bricks.append(members[r])
                 cid.append(c)
-    keys = a.layout.keys
-    score = np.array([a.scores[q] for q in keys])
-    drag = np.array([a.max_drag[q] for q in keys])
-    rest = [int(i) for i in np.lexsort((-drag, -score)) if score[i] < 1.0][: max(k - len(bricks), 0)]
+    rest = [int(i) for i in order if score[i] < 1.0][: max(k - len(bricks), 0)]
     return bricks + rest, cid + [-1 - j for j in range(len(rest))]
 
 
@@ -716,7 +713,7 @@ def _search(layout: Layout, opts: RepairOptions, method: str) -> RepairResult:
                 a = _exact(apply_candidates(layout, picked, keys), opts)
                 exact_calls += 1
                 if a.stable or exact_loss(a) - base_loss < min(t[3] for t in trials):
-                    layout = apply_candidates(layout, picked, keys)
+                    layout = a.layout  # the layout just analysed
                     for i in combo:
                         ck, keys = keys[:cands[i].k], keys[cands[i].k:]
                         changes.append(Change(candidate=cands[i], keys=ck, score=float(per_brick[i])))
