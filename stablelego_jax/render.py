@@ -37,6 +37,7 @@ __all__ = [
     "score_cmap",
     "DEFAULT_VIEW",
     "auto_view",
+    "view_across",
     "view_basis",
 ]
 
@@ -70,7 +71,13 @@ def score_cmap():
 def auto_view(layout: Layout) -> tuple[float, float]:
     """A view that looks across the longer side of the footprint."""
     ext = (layout.pos[:, :2] + layout.size).max(axis=0) - layout.pos[:, :2].min(axis=0)
-    r = float(ext[0]) / float(ext[0] + ext[1])
+    return view_across(float(ext[0]), float(ext[1]))
+
+
+def view_across(ext_x: float, ext_y: float) -> tuple[float, float]:
+    """(elevation, azimuth) in degrees of a view across the longer side of a
+    footprint ``ext_x`` x ``ext_y`` (any one length unit)."""
+    r = ext_x / (ext_x + ext_y) if ext_x + ext_y > 0 else 0.5
     return DEFAULT_VIEW[0], -10.0 - 70.0 * r
 
 

@@ -1,6 +1,7 @@
 """Interactive 3D heat maps: one self-contained HTML page per layout or sequence.
 
-The page draws every brick as a box coloured by its stability score (the
+The page draws every brick (or body of a scene: plates, turned bricks,
+plain blocks) as a box coloured by its stability score (the
 colour scale of :mod:`~stablelego_jax.render`: black 0, red towards 1,
 white failing), with plotly.js (bundled by the ``plotly`` package and
 written into the page, so it opens offline): drag to turn, scroll to zoom,
@@ -8,7 +9,9 @@ hover a brick for its key, size, cell and score. A page of several frames
 (the steps of a build sequence) has a step slider and buttons; the view is
 kept while stepping.
 
-Boxes are in stud units, layers ``9.6 / 7.8`` studs high, as in the PNG.
+Boxes are in stud units (7.8 mm), layers ``9.6 / 7.8`` studs high, as in
+the PNG; a scene's bodies are drawn at their positions and yaws in the
+same units (:func:`box_corners`).
 Files are written atomically. Needs the ``html`` extra
 (``pip install 'stablelego-jax[html]'``).
 """
@@ -26,18 +29,20 @@ from typing import Sequence
 import numpy as np
 
 from .files import atomic_write, atomic_write_text
+from .geometry import rect_corners
 from .layout import Layout
-from .render import Z_SCALE, auto_view, score_cmap
+from .render import Z_SCALE, score_cmap, view_across
+from .scene import BRICK, STUD_M, Scene, body_word, boxes
 
-__all__ = ["Frame", "html_heatmap", "html_frames", "score_colors", "find_chromium", "screenshot"]
+__all__ = ["Frame", "html_heatmap", "html_frames", "score_colors", "box_corners", "find_chromium", "screenshot"]
 
 
 class Frame:
-    """One picture of a page: ``layout``, its (n,) ``scores`` (NaN: no
-    score), a ``label`` for the slider and a one-line ``note``;
-    ``extra`` (k,) bool marks bricks drawn translucent grey (loads, supports)."""
+    """One picture of a page: ``layout`` (a Layout or a Scene), its (n,)
+    ``scores`` (NaN: no score), a ``label`` for the slider and a one-line
+    ``note``; ``extra`` (k,) bool marks bricks drawn grey (loads, supports)."""
 
-    def __init__(self, layout: Layout, scores, label: str = "", note: str = "", extra=None):
+    def __init__(self, layout: Layout | Scene, scores, label: str = "", note: str = "", extra=None):
         self.layout = layout
         self.scores = np.asarray(scores, np.float64).reshape(layout.n)
         self.label = label
@@ -54,16 +59,48 @@ def score_colors(scores) -> list:
     return ["#%02x%02x%02x" % tuple(int(round(255 * c)) for c in row[:3]) for row in rgba.reshape(-1, 4)]
 
 
+def box_corners(layout: Layout | Scene) -> np.ndarray:
+    """(n, 8, 3) corners of every body's box in drawing units (studs; a
+    layer is ``Z_SCALE`` high): the bottom face counter-clockwise from the
+    body's own (-x, -y) corner, then the top face in the same order."""
+    if isinstance(layout, Scene):
+        centre, size, yaw = (v / STUD_M if i < 2 else v for i, v in enumerate(boxes(layout)))
+        xy = rect_corners(centre[:, :2], size[:, :2], yaw)  # (n, 4, 2)
+        z0, z1 = centre[:, 2] - size[:, 2] / 2, centre[:, 2] + size[:, 2] / 2
+    else:
+        lo, sz = layout.pos[:, :2].astype(np.float64), layout.size.astype(np.float64)
+        xy = rect_corners(lo + sz / 2, sz, np.zeros(layout.n))
+        z0 = layout.pos[:, 2] * Z_SCALE
+        z1 = z0 + Z_SCALE
+    zz = np.stack([np.repeat(z0[:, None], 4, 1), np.repeat(z1[:, None], 4, 1)], 1)  # (n, 2, 4)
+    return np.concatenate([np.tile(xy, (1, 2, 1)), zz.reshape(-1, 8, 1)], axis=2)
+
+
+def _describe(lay: Layout | Scene, i: int) -> str:
+    """How a hover names body ``i``: key, size and place in the layout's own units."""
+    k = lay.keys[i]
+    if not isinstance(lay, Scene):
+        (x, y, z), (sx, sy) = lay.pos[i].tolist(), lay.size[i].tolist()
+        return f"brick {k!r} {int(sx)}x{int(sy)} at ({int(x)},{int(y)},{int(z)})"
+    (x, y, z), (sx, sy, sz), yaw = lay.pos[i].tolist(), lay.size[i].tolist(), float(lay.yaw[i])
+    turn = f", yaw {yaw:g} deg" if yaw % 360 else ""
+    if lay.kind[i] == BRICK:
+        part = "plate" if sz == 1 else "brick" if sz == 3 else f"part {sz:g} plates high"
+        return f"{part} {k!r} {int(sx)}x{int(sy)} at ({x:g},{y:g}) studs, level {z:g}{turn}"
+    return (f"{body_word(lay.kind[i])} {k!r} {sx * 1e3:.4g}x{sy * 1e3:.4g}x{sz * 1e3:.4g} mm "
+            f"at ({x * 1e3:.4g},{y * 1e3:.4g},{z * 1e3:.4g}) mm{turn}")
+
+
 def _frame_json(fr: Frame) -> dict:
     lay = fr.layout
     s = fr.scores
-    text = [f"brick {k!r} {int(sx)}x{int(sy)} at ({int(x)},{int(y)},{int(z)}): "
-            + ("no score" if not math.isfinite(v) else f"score {v:.3f}" + (" FAILS" if v >= 1.0 else ""))
-            for k, (x, y, z), (sx, sy), v in zip(lay.keys, lay.pos.tolist(), lay.size.tolist(), s.tolist())]
+    text = [_describe(lay, i) + ": " + ("no score" if not math.isfinite(v) else
+                                         f"score {v:.3f}" + (" FAILS" if v >= 1.0 else ""))
+            for i, v in enumerate(s.tolist())]
     cols = score_colors(s)
     cols = ["#9aa1ab" if e else c for c, e in zip(cols, fr.extra.tolist())]
-    return {"label": fr.label, "note": fr.note, "pos": lay.pos.tolist(), "size": lay.size.tolist(),
-            "color": cols, "text": text}
+    corners = np.round(box_corners(lay), 4)
+    return {"label": fr.label, "note": fr.note, "corners": corners.tolist(), "color": cols, "text": text}
 
 
 # The page: plotly.js, the frames as JSON, and a small script that turns a
@@ -80,18 +117,14 @@ _PAGE = """<!DOCTYPE html>
 <div id="plot"></div>
 <script>
 const FRAMES = {frames};
-const ZS = {zscale};
 const SCALE = {colorscale};
 function box(f) {{
   const x = [], y = [], z = [], i = [], j = [], k = [], fc = [], tx = [];
   const ex = [], ey = [], ez = [];
   const T = [[0,1,2],[0,2,3],[4,6,5],[4,7,6],[0,4,5],[0,5,1],[1,5,6],[1,6,2],[2,6,7],[2,7,3],[3,7,4],[3,4,0]];
   const E = [[0,1],[1,2],[2,3],[3,0],[4,5],[5,6],[6,7],[7,4],[0,4],[1,5],[2,6],[3,7]];
-  f.pos.forEach((p, b) => {{
-    const [x0, y0, z0] = p, [sx, sy] = f.size[b], v0 = x.length;
-    const X = [x0, x0 + sx, x0 + sx, x0], Y = [y0, y0, y0 + sy, y0 + sy];
-    const V = [];
-    for (const zz of [z0 * ZS, (z0 + 1) * ZS]) for (let c = 0; c < 4; c++) V.push([X[c], Y[c], zz]);
+  f.corners.forEach((V, b) => {{
+    const v0 = x.length;
     V.forEach(q => {{ x.push(q[0]); y.push(q[1]); z.push(q[2]); tx.push(f.text[b]); }});
     T.forEach(t => {{ i.push(v0 + t[0]); j.push(v0 + t[1]); k.push(v0 + t[2]); fc.push(f.color[b]); }});
     E.forEach(e => {{ for (const q of [V[e[0]], V[e[1]]]) {{ ex.push(q[0]); ey.push(q[1]); ez.push(q[2]); }}
@@ -143,16 +176,17 @@ def html_frames(frames: Sequence[Frame], path: str, title: str = "stablelego") -
     except ImportError:
         raise RuntimeError("--html needs plotly: pip install 'stablelego-jax[html]'") from None
     data = json.dumps([_frame_json(f) for f in frames], separators=(",", ":")).replace("</", "<\\/")
-    elev, azim = (math.radians(v) for v in auto_view(frames[-1].layout))  # the PNG's view direction
+    ext = np.ptp(box_corners(frames[-1].layout).reshape(-1, 3)[:, :2], axis=0)
+    elev, azim = (math.radians(v) for v in view_across(float(ext[0]), float(ext[1])))  # the PNG's view
     eye = {"x": 3.4 * math.cos(elev) * math.cos(azim), "y": 3.4 * math.cos(elev) * math.sin(azim),
            "z": 3.4 * math.sin(elev)}
-    page = _PAGE.format(title=html.escape(title), plotly=get_plotlyjs(), frames=data, zscale=repr(Z_SCALE),
+    page = _PAGE.format(title=html.escape(title), plotly=get_plotlyjs(), frames=data,
                         colorscale=json.dumps(_colorscale()), last=len(frames) - 1, eye=json.dumps(eye),
                         ctl_display="flex" if len(frames) > 1 else "none", head_px=80 if len(frames) > 1 else 40)
     atomic_write_text(path, page)
 
 
-def html_heatmap(layout: Layout, scores, path: str, title: str | None = None, note: str = "") -> None:
+def html_heatmap(layout: Layout | Scene, scores, path: str, title: str | None = None, note: str = "") -> None:
     """Write the 3D heat map page of one layout; ``scores`` (n,) as for
     :func:`~stablelego_jax.render.render_heatmap`."""
     html_frames([Frame(layout, scores, note=note)], path, title or layout.source)

@@ -11,14 +11,16 @@ gives the press location (APEX-MR step files), a 1x2 load block of mass
 ``press / g`` on the brick's top at that spot, as APEX-MR's own stability
 check models its press tool; otherwise an extra mass ``press / g`` at the
 brick's centre (:attr:`Layout.mass`). Both are plain layouts: no change to
-the force model. A press from below (a brick hung under the structure) is
+the force model. A :class:`~stablelego_jax.scene.Scene` (plates, turned
+bricks, plain blocks) is sequenced the same way, its steps ordered by the
+height of their bottoms and pressed at the body's centre. A press from below (a brick hung under the structure) is
 not a load the model can carry and is left out at that step (reported).
 
 A step that stands without the press but falls under it needs a support
 under the pressed brick. Candidate supports are pillars of weightless 1x1
 bricks filling the empty cells of one stud column under the pressed brick,
 from the baseplate up (a second arm holding the structure from below, as
-APEX-MR models it); every candidate of every such step is scored in one
+APEX-MR models it; grid layouts only: no pillar is tried in a scene); every candidate of every such step is scored in one
 more batched call, and the best standing one (lowest highest score) is
 reported as the top cell of its pillar.
 
@@ -39,9 +41,10 @@ from .blas import one_blas_thread
 from .files import read_text
 from .layout import Layout, LayoutError, cells_of, make_layout
 from .model import Params
+from .scene import Scene, boxes
 
 __all__ = ["BuildOrder", "Step", "SequenceResult", "layer_order", "read_order", "check_order", "prefix_layouts",
-           "press_layout", "support_candidates", "analyze_sequence", "plan_order", "PRESS_KEY"]
+           "press_layout", "support_candidates", "bottoms", "analyze_sequence", "plan_order", "PRESS_KEY"]
 
 #: Key of the press load block in a pressed step's layout.
 PRESS_KEY = "press"
@@ -116,7 +119,7 @@ class SequenceResult:
     ``time_s``: wall time of the batched solves; ``n_solved``: layouts solved."""
 
     file: str
-    layout: Layout
+    layout: Layout | Scene
     order: BuildOrder
     steps: list
     press: float | None
@@ -146,14 +149,23 @@ class SequenceResult:
 # orders
 
 
-def layer_order(layout: Layout, fixed: Sequence[str] = ()) -> BuildOrder:
-    """Bottom layer first, input order within a layer (``fixed`` left out)."""
+def bottoms(layout: Layout | Scene) -> np.ndarray:
+    """(n,) height of every brick's bottom: its layer in a Layout, metres in a Scene."""
+    if isinstance(layout, Scene):
+        centre, size, _ = boxes(layout)
+        return np.round(centre[:, 2] - size[:, 2] / 2, 9)
+    return layout.pos[:, 2]
+
+
+def layer_order(layout: Layout | Scene, fixed: Sequence[str] = ()) -> BuildOrder:
+    """Bottom layer first, input order within a layer (``fixed`` left out);
+    in a Scene, lowest bottom first."""
     fx = set(fixed)
-    idx = [i for i in np.lexsort((np.arange(layout.n), layout.pos[:, 2])) if layout.keys[i] not in fx]
+    idx = [i for i in np.lexsort((np.arange(layout.n), bottoms(layout))) if layout.keys[i] not in fx]
     return BuildOrder(keys=tuple(layout.keys[i] for i in idx), fixed=tuple(fixed), name="layers")
 
 
-def check_order(layout: Layout, order: BuildOrder, source: str | None = None) -> None:
+def check_order(layout: Layout | Scene, order: BuildOrder, source: str | None = None) -> None:
     """LayoutError naming ``source`` unless fixed + keys name every brick of
     ``layout`` exactly once."""
     src = source or order.name
@@ -170,7 +182,7 @@ def check_order(layout: Layout, order: BuildOrder, source: str | None = None) ->
         raise LayoutError(src, f"brick {missing[0]!r}{more} of {layout.source} is not in the order")
 
 
-def read_order(path: str, layout: Layout) -> BuildOrder:
+def read_order(path: str, layout: Layout | Scene) -> BuildOrder:
     """An order file: a JSON list of brick keys (or ``{"order": [...],
     "fixed": [...]}``), or text with one key a line (``#`` comments).
     Checked against ``layout`` (:func:`check_order`)."""
@@ -208,7 +220,7 @@ def _add_bricks(layout: Layout, keys, pos, size, mass) -> Layout:
         source=layout.source, fmt=layout.fmt)
 
 
-def prefix_layouts(layout: Layout, order: BuildOrder) -> list:
+def prefix_layouts(layout: Layout | Scene, order: BuildOrder) -> list:
     """Step layouts: fixed bricks plus the first k bricks of the order, k = 1..n."""
     index = {k: i for i, k in enumerate(layout.keys)}
     base = [index[k] for k in order.fixed]
@@ -216,7 +228,7 @@ def prefix_layouts(layout: Layout, order: BuildOrder) -> list:
     return [layout.subset(base + steps[: k + 1]) for k in range(len(steps))]
 
 
-def press_layout(prefix: Layout, key: str, newtons: float, order: BuildOrder,
+def press_layout(prefix: Layout | Scene, key: str, newtons: float, order: BuildOrder,
                  params: Params = Params()) -> tuple[Layout | None, str]:
     """``prefix`` with brick ``key`` pressed down by ``newtons`` N, and how:
     "block" (a load block of mass N / g at ``order.press_at[key]``), "brick"
@@ -238,11 +250,13 @@ def press_layout(prefix: Layout, key: str, newtons: float, order: BuildOrder,
     return dataclasses.replace(prefix, mass=mass), "brick"
 
 
-def support_candidates(layout: Layout, key: str) -> list:
+def support_candidates(layout: Layout | Scene, key: str) -> list:
     """Support pillars under brick ``key`` of ``layout``: for each stud
     column of its footprint, weightless 1x1 bricks in every empty cell of
     that column below it. Returns [((x, y, top layer), layout with pillar)],
-    columns without an empty cell left out."""
+    columns without an empty cell left out; [] for a Scene."""
+    if isinstance(layout, Scene):
+        return []
     i = layout.keys.index(key)
     x0, y0, z0 = (int(v) for v in layout.pos[i])
     cells, _ = cells_of(layout.pos, layout.size)
@@ -272,7 +286,7 @@ def _solve(layouts: list, solver: str, params: Params) -> list:
     return res
 
 
-def analyze_sequence(layout: Layout, order: BuildOrder | None = None, press: float | None = None,
+def analyze_sequence(layout: Layout | Scene, order: BuildOrder | None = None, press: float | None = None,
                      solver: str = "jax", params: Params = Params(), find_support: bool = True) -> SequenceResult:
     """Score every step of ``order`` (default: :func:`layer_order`).
 
@@ -327,9 +341,19 @@ def analyze_sequence(layout: Layout, order: BuildOrder | None = None, press: flo
 # planning
 
 
-def _connected(layout: Layout, placed: set, remaining: Sequence[str]) -> list:
-    """Bricks of ``remaining`` on the baseplate or with a knob on or under a placed brick."""
+def _connected(layout: Layout | Scene, placed: set, remaining: Sequence[str]) -> list:
+    """Bricks of ``remaining`` on the baseplate or with a knob on or under a
+    placed brick (in a Scene: resting on the ground, or on or under a placed
+    body)."""
     index = {k: i for i, k in enumerate(layout.keys)}
+    if isinstance(layout, Scene):
+        from .contacts import scene_contacts
+
+        c = scene_contacts(layout)
+        pairs = np.concatenate([c.lego_pair, c.push_pair[c.push_bottom.astype(bool)]]).tolist()
+        base = {layout.n} | {index[k] for k in placed}
+        near = {a for a, b in pairs if b in base} | {b for a, b in pairs if a in base}
+        return [k for k in remaining if index[k] in near]
     cells, owner = cells_of(layout.pos, layout.size)
     occupied = {tuple(c) for c, o in zip(cells.tolist(), owner.tolist()) if layout.keys[o] in placed}
     out = []
@@ -342,7 +366,7 @@ def _connected(layout: Layout, placed: set, remaining: Sequence[str]) -> list:
     return out
 
 
-def plan_order(layout: Layout, press: float | None = None, fixed: Sequence[str] = (), solver: str = "jax",
+def plan_order(layout: Layout | Scene, press: float | None = None, fixed: Sequence[str] = (), solver: str = "jax",
                params: Params = Params(), window: int = 64, max_candidates: int = 64,
                base: BuildOrder | None = None) -> tuple[BuildOrder, bool]:
     """Look for an order in which every step stands (under ``press`` N when
@@ -361,6 +385,7 @@ def plan_order(layout: Layout, press: float | None = None, fixed: Sequence[str] 
     placed: list = []
     found = True
     index = {k: i for i, k in enumerate(layout.keys)}
+    level = bottoms(layout)
 
     def stands(k_list, lays):
         jobs = []
@@ -382,10 +407,10 @@ def plan_order(layout: Layout, press: float | None = None, fixed: Sequence[str] 
         if not remaining or k:
             continue
         cands = _connected(layout, set(base.fixed) | set(placed), remaining)
-        cands = sorted(cands, key=lambda c: (int(layout.pos[index[c], 2]), remaining.index(c)))[:max_candidates]
+        cands = sorted(cands, key=lambda c: (level[index[c]], remaining.index(c)))[:max_candidates]
         cands = cands or remaining[:1]
         res = stands(cands, [prefix(placed + [c]) for c in cands])
-        ranked = sorted(range(len(cands)), key=lambda j: (not res[j].stable, int(layout.pos[index[cands[j]], 2]),
+        ranked = sorted(range(len(cands)), key=lambda j: (not res[j].stable, level[index[cands[j]]],
                                                           _score(res[j]), j))
         best = cands[ranked[0]]
         found = found and res[ranked[0]].stable

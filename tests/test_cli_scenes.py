@@ -1,6 +1,6 @@
 """Every command reads scenes (blocks, pallets, rotated bricks): analyze
 (labels of the paper's Sec. IV.E cases, support scores, heat maps), score,
-export (JSON as read, LDraw rotation matrices), repair and sequence
+export (JSON as read, LDraw rotation matrices), sequence, repair
 (refused); LDraw models with plates and parts that cannot be modelled
 (--skip-unsupported)."""
 import json
@@ -90,13 +90,53 @@ def test_repair_refuses_scenes(tmp_path, capsys):
     assert not (tmp_path / "o.json").exists()
 
 
-def test_sequence_refuses_scenes_and_html_draws_grid_layouts_only(tmp_path, capsys):
+# a 2x4 brick, a 2x4 plate on it, a 2x4 plate half over its edge, a 1x4 plate turned on the first plate
+PLATES = """1 4 0 0 0 1 0 0 0 1 0 0 0 1 3001.dat
+1 4 0 -8 0 1 0 0 0 1 0 0 0 1 3020.dat
+1 4 40 -16 0 1 0 0 0 1 0 0 0 1 3020.dat
+1 4 -30 -16 0 0 0 1 0 1 0 -1 0 0 3710.dat
+"""
+
+
+def test_sequence_of_scenes(tmp_path, capsys):
+    # the paper's 8-level stack with a block pushed out: the step that adds it is the first to fall
+    src = os.path.join(EXT, "stack8_moved.json")
+    assert cli.main(["sequence", src, "--solver", "exact", "--json"]) == 1
+    rec = json.loads(capsys.readouterr().out)
+    stand = [st["stable"] for st in rec["steps"]]
+    assert rec["n_steps"] == 8 and not rec["stable"] and rec["first_fall"] == stand.index(False) + 1
+    exact = cli.main(["analyze", src, "--solver", "exact", "--json"])
+    assert exact == 0 and not json.loads(capsys.readouterr().out)["stable"]
+    # plates from LDraw: ordered by the height of their bottoms; the plate half over the edge is held by its
+    # knobs; pressed hard at its far end it falls, and no support pillar is tried in a scene
+    ldr = tmp_path / "plates.ldr"
+    ldr.write_text(PLATES)
+    assert cli.main(["sequence", str(ldr), "--solver", "exact", "--json", "--html", str(tmp_path / "s.html")]) == 0
+    rec = json.loads(capsys.readouterr().out)
+    assert [st["brick"] for st in rec["steps"]] == ["1", "2", "3", "4"] and rec["stable"]
+    assert (tmp_path / "s.html").exists() and "plate '3' 4x2" in (tmp_path / "s.html").read_text()
+    assert cli.main(["sequence", str(ldr), "--solver", "exact", "--press", "500"]) == 0
+    out = capsys.readouterr().out
+    assert "no support pillar tried (pillars are tried in grid layouts only)" in out
+    # --plan finds an order; --skip-unsupported leaves out what cannot be modelled
+    assert cli.main(["sequence", str(ldr), "--solver", "exact", "--plan", "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["plan_found"]
+    ldr.write_text(PLATES + "1 4 0 -40 0 1 0 0 0 1 0 0 0 1 3039.dat\n")
+    assert cli.main(["sequence", str(ldr), "--solver", "exact"]) == 2
+    assert "1 part cannot be modelled: 3039 x1 (line 5)" in capsys.readouterr().err
+    assert cli.main(["sequence", str(ldr), "--solver", "exact", "--skip-unsupported", "--json"]) == 0
+    out, err = capsys.readouterr()
+    assert json.loads(out)["n_steps"] == 4 and err.startswith(f"warning: {ldr}: left out, 1 part")
+
+
+def test_analyze_html_draws_scenes(tmp_path, capsys):
     src = os.path.join(EXT, "lego_single_knob.json")
-    assert cli.main(["sequence", src]) == 2  # as for any layout it cannot read
-    assert "cannot be sequenced yet" in capsys.readouterr().err
-    assert cli.main(["analyze", src, "--solver", "exact", "--html", str(tmp_path / "p.html")]) == 0
-    assert "no 3D page for scenes" in capsys.readouterr().err
-    assert not (tmp_path / "p.html").exists()
+    assert cli.main(["analyze", src, "--solver", "exact", "--html", str(tmp_path / "p.html"), "--json"]) == 0
+    out, err = capsys.readouterr()
+    assert err == "" and json.loads(out)["html"] == str(tmp_path / "p.html")
+    text = (tmp_path / "p.html").read_text()
+    lay = load_layout(src)
+    assert all(f"'{k}'" in text for k in lay.keys) and "yaw" in text
 
 
 # a 2x4 brick, a 2x4 plate on it, a brick on the plate, two slopes and a tile beside

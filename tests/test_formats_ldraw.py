@@ -166,6 +166,9 @@ def test_import_off_grid_overlap_empty(tmp_path):
     assert report == {"3001 overlapping another part": [1, "line 2"]}
     with pytest.raises(LayoutError, match="no brick parts"):
         parse_ldr("0 empty model\n0 STEP\n", source="e.ldr")
+    only_unsupported = "1 4 0 0 0 1 0 0 0 1 0 0 0 1 3039.dat\n1 4 0 -24 0 1 0 0 0 1 0 0 0 1 3039.dat\n"
+    with pytest.raises(LayoutError, match=r"^s.ldr: nothing left to analyse: 2 parts cannot be modelled: 3039 x2"):
+        parse_ldr(only_unsupported, source="s.ldr", skip_unsupported=True)
     p = tmp_path / "missing.ldr"
     with pytest.raises(LayoutError, match="missing.ldr"):
         load_layout(str(p))

@@ -157,15 +157,12 @@ def cmd_analyze(args) -> int:
                     from ..render import render_heatmap
 
                     render_heatmap(a.layout, scores, png)
-            if args.html and a.scores and not isinstance(a.layout, Scene):
+            if args.html and a.scores:
                 from ..render_html import html_heatmap
 
                 page = png_target(args.html, path, many, used_html, ext=".html")
                 html_heatmap(a.layout, [a.scores[k] for k in a.layout.keys], page, title=path,
                              note=_summary(a).splitlines()[0])
-            elif args.html and a.scores:
-                print(f"warning: {path}: no 3D page for scenes (blocks, plates, turned bricks) yet; "
-                      "--png draws them", file=sys.stderr)
             support = _support(a)
         except Exception as exc:  # one bad file must not stop the others
             failed += 1

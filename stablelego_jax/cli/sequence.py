@@ -1,10 +1,11 @@
-"""``stablelego sequence LAYOUT [--order FILE|layers] [--press N] [--plan] [--json] [--html P]``:
+"""``stablelego sequence LAYOUT [--order FILE|layers] [--press N] [--plan] [--json] [--html P] [--skip-unsupported]``:
 the command line of :mod:`stablelego_jax.sequence`."""
 from __future__ import annotations
 
 import argparse
 import dataclasses
 import json
+import sys
 
 from .common import report_error
 
@@ -20,7 +21,8 @@ def add_parser(sub) -> None:
                     "that falls and the weakest brick of every step. --press N adds the insertion press of each "
                     "step (N newtons pushing the new brick down) and says which steps then need a support under "
                     "the pressed brick, and where. --plan looks for an order in which every step stands. LAYOUT "
-                    "may be any layout file or an APEX-MR step file (config/lego_tasks/steps/<task>_seq.json: "
+                    "may be any layout file (scenes of plates, turned bricks and plain blocks too, ordered by the height of "
+                    "their bottoms; support pillars are tried in grid layouts only) or an APEX-MR step file (config/lego_tasks/steps/<task>_seq.json: "
                     "its own order, press locations and the env_setup pillars beside it).",
     )
     s.add_argument("layout", metavar="LAYOUT")
@@ -37,6 +39,8 @@ def add_parser(sub) -> None:
     s.add_argument("--solver", choices=["jax", "admm", "exact"], default="jax",
                    help="jax (batched interior point, default), admm or exact (HiGHS, one step at a time)")
     s.add_argument("--library", help="brick library JSON (default: the StableLego library)")
+    s.add_argument("--skip-unsupported", action="store_true",
+                   help="LDraw: sequence the parts that can be modelled, with a warning naming the others")
     s.add_argument("--json", action="store_true", help="print one JSON object")
     s.add_argument("--html", metavar="P", help="3D page with a step slider")
     s.add_argument("--save-order", metavar="FILE", help="write the order used (e.g. the --plan result) as JSON")
@@ -67,13 +71,12 @@ def _load(args):
                           support_ref=task.support, name="apex-mr")
         layout = task.layout
     else:
-        layout = load_layout(path, args.library)
-        from ..layout import LayoutError
-        from ..scene import Scene
+        from ..formats.ldraw import unsupported_message
 
-        if isinstance(layout, Scene):
-            raise LayoutError(path, "sequence builds layouts of grid bricks; scenes of blocks, plates or turned "
-                                    "bricks cannot be sequenced yet")
+        left_out: dict = {}
+        layout = load_layout(path, args.library, args.skip_unsupported, left_out)
+        if left_out:
+            print(f"warning: {path}: left out, {unsupported_message(left_out)}", file=sys.stderr)
         base = layer_order(layout)
     if args.order == "layers":
         base = dataclasses.replace(base, keys=layer_order(layout, base.fixed).keys, name="layers")
@@ -84,6 +87,8 @@ def _load(args):
 
 
 def _text(res, found) -> str:
+    from ..scene import Scene
+
     steps = res.steps
     head = f"{res.file}: {len(steps)} steps (order {res.order.name}"
     head += f", {len(res.order.fixed)} fixed bricks)" if res.order.fixed else ")"
@@ -100,7 +105,10 @@ def _text(res, found) -> str:
                                                     if sup else "no step needs a support"))
         for s in sup:
             where = (f"support at cell ({s.support[0]},{s.support[1]},{s.support[2]}) stands "
-                     f"(score {s.support_score:.3f})" if s.support else f"no single support of {s.support_tried} stands")
+                     f"(score {s.support_score:.3f})" if s.support else
+                     f"no single support of {s.support_tried} stands" if s.support_tried else
+                     "no support pillar tried (" + ("pillars are tried in grid layouts only)"
+                                                    if isinstance(res.layout, Scene) else "no empty cell under it)"))
             lines.append(f"    step {s.step} (brick {s.key!r}): falls at {s.pressed_weakest!r}; {where}")
     hdr = f"  {'step':>4} {'brick':>10} {'bricks':>6}  {'stands':6} {'weakest':>10} {'score':>6}"
     if res.press is not None:

@@ -472,6 +472,8 @@ def parse_ldr(text: str, source: str = "<memory>", ground: bool = True, skip_uns
     keep = [i for i, (_, bad) in enumerate(orient) if not bad]
     parts = [parts[i] for i in keep]
     yaw = np.array([orient[i][0] for i in keep], np.float64)
+    if not parts and unsupported:
+        raise LayoutError(source, f"nothing left to analyse: {unsupported_message(unsupported)}")
     if not parts:
         raise LayoutError(source, "no brick parts (type-1 lines) in the file")
     scene = _scene_of(parts, yaw, source, ground)
