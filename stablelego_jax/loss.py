@@ -101,7 +101,7 @@ import jax.numpy as jnp
 
 from .runtime import x64_differentiable
 from .score import largest_drag, residual_bad, verdict
-from .soft import SoftProblem
+from .soft import ScenePositions, SoftProblem, shifted_wrenches
 from .solvers.soft_ipm import BarrierOptions, SoftContext, brick_residual, central_path, column_force, soft_context
 
 __all__ = [
@@ -111,6 +111,7 @@ __all__ = [
     "solve_soft",
     "brick_loss",
     "stability_loss",
+    "position_loss",
     "soft_scores",
     "fail_prob",
     "soft_report",
@@ -219,6 +220,24 @@ def stability_loss(weights, loads, prob: SoftProblem, temperature: float | None 
                    opts: LossOptions = LossOptions()):
     """Scalar stability loss: the sum of :func:`brick_loss`."""
     return _brick_losses(weights, loads, prob, temperature, opts).sum()
+
+
+@x64_differentiable("shift", "weights", "loads")
+def position_loss(shift, weights, loads, prob: SoftProblem, geo: ScenePositions, temperature: float | None = None,
+                  opts: LossOptions = LossOptions()):
+    """:func:`stability_loss` of a scene whose plain blocks are moved
+    horizontally by ``shift`` (n, 2) metres (``prob``:
+    :func:`~stablelego_jax.soft.soft_problem` of the scene, ``geo``:
+    :func:`~stablelego_jax.soft.scene_positions`). Differentiable in
+    ``shift`` as well as weights and loads: ``d loss / d shift[b]`` is how the
+    total overload changes per metre that block b slides, with the contact
+    polygons following it (their vertices are affine in the moves while no
+    contact appears or vanishes; at ``shift`` = 0 the loss equals
+    :func:`stability_loss`, and away from 0 its contacts are those of the
+    unmoved scene, linearised). At a kink (``geo.smooth`` False, e.g. two
+    aligned edges) the gradient is the mean of the one-sided ones."""
+    coef = shifted_wrenches(geo, shift, xp=jnp)
+    return _brick_losses(weights, loads, prob._replace(col_coef=coef), temperature, opts).sum()
 
 
 @x64_differentiable("weights", "loads")

@@ -27,7 +27,8 @@ from .contacts import PTS_3, PTS_4, contact_levels, four_point_knobs, scene_cont
 from .layout import Layout, cell_owner, cells_of
 from .scene import BLOCK, Scene, boxes
 
-__all__ = ["Params", "ForceModel", "compile_layout", "compile_scene", "column_wrenches", "normal_groups",
+__all__ = ["Params", "ForceModel", "compile_layout", "compile_scene", "scene_columns", "shifted", "point_jacobian",
+           "column_wrenches", "normal_groups",
            "NORMAL", "KNOB", "SIDE"]
 
 NORMAL, KNOB, SIDE = 0, 1, 2
@@ -153,18 +154,20 @@ def normal_groups(col_brick: np.ndarray, col_kind: np.ndarray, n: int) -> np.nda
     return group
 
 
-def column_wrenches(pair: np.ndarray, forces: np.ndarray, points: np.ndarray, centre: np.ndarray) -> np.ndarray:
+def column_wrenches(pair: np.ndarray, forces: np.ndarray, points: np.ndarray, centre: np.ndarray,
+                    xp=np) -> np.ndarray:
     """(k, 2, 6) wrench per unit force of columns acting on body ``pair[:, 0]``
     with ``forces`` (k, 3) at ``points`` (k, 3) (m) and oppositely on
     ``pair[:, 1]`` (zero where it is ``n`` = ``len(centre)``, the ground);
-    torques about each body's centre ``centre`` (n, 3) (m)."""
+    torques about each body's centre ``centre`` (n, 3) (m). ``xp``: numpy
+    or jax.numpy (differentiable in points and centres)."""
     n = len(centre)
     c0 = centre[pair[:, 0]]
-    c1 = np.where(pair[:, 1:2] < n, centre[np.minimum(pair[:, 1], n - 1)], 0.0)
-    w0 = np.concatenate([forces, np.cross(points - c0, forces)], axis=1)
-    w1 = np.concatenate([-forces, np.cross(points - c1, -forces)], axis=1)
-    w1 = np.where(pair[:, 1:2] < n, w1, 0.0)
-    return np.stack([w0, w1], axis=1)
+    c1 = xp.where(pair[:, 1:2] < n, centre[np.minimum(pair[:, 1], n - 1)], 0.0)
+    w0 = xp.concatenate([forces, xp.cross(points - c0, forces)], axis=1)
+    w1 = xp.concatenate([-forces, xp.cross(points - c1, -forces)], axis=1)
+    w1 = xp.where(pair[:, 1:2] < n, w1, 0.0)
+    return xp.stack([w0, w1], axis=1)
 
 
 def compile_layout(layout: Layout | Scene, params: Params = Params()) -> ForceModel:
@@ -261,6 +264,110 @@ def compile_layout(layout: Layout | Scene, params: Params = Params()) -> ForceMo
     )
 
 
+def scene_columns(scene: Scene, params: Params = Params()):
+    """The columns of :func:`compile_scene` before their wrenches: (pair (m, 2)
+    int64 bodies, n = ground; force direction on slot 0 (m, 3); point of
+    application (m, 3) m; kind (m,) int8; body centres (n, 3) m)."""
+    centre, _, _ = boxes(scene, params.stud, params.layer / 3)
+    c = scene_contacts(scene, params.stud, params.layer / 3)
+    a, b, k = len(c.lego_pair), len(c.knob_pair), len(c.push_pair)
+    ez = np.tile([0.0, 0.0, 1.0], (a, 1))
+    ex, ey = np.tile([1.0, 0.0, 0.0], (b, 1)), np.tile([0.0, 1.0, 0.0], (b, 1))
+    pair = np.concatenate([c.lego_pair, c.knob_pair, c.knob_pair, c.push_pair]).astype(np.int64)
+    forces = np.concatenate([ez, ex, ey, c.push_dir])
+    points = np.concatenate([c.lego_point, c.knob_point, c.knob_point, c.push_point])
+    kind = np.concatenate([np.full(a, NORMAL), np.full(2 * b, KNOB), np.full(k, SIDE)]).astype(np.int8)
+    return pair, forces, points, kind, centre
+
+
+def shifted(scene: Scene, shift: np.ndarray, params: Params = Params()) -> Scene:
+    """``scene`` with every body moved horizontally by ``shift`` (n, 2) metres
+    (bricks: by shift / stud studs). Not validated (overlaps are not checked)."""
+    unit = np.where(scene.kind == BLOCK, 1.0, 1.0 / params.stud)[:, None]
+    pos = scene.pos.copy()
+    pos[:, :2] = pos[:, :2] + np.asarray(shift, np.float64) * unit
+    return dataclasses.replace(scene, pos=pos)
+
+
+_MAX_POINT_RATE = 100.0  # m per m: faster than this, a contact point was renumbered, not moved
+
+
+def point_jacobian(scene: Scene, params: Params = Params(), h: float = 1e-6):
+    """How the columns' points of application move when bodies move
+    horizontally: (J (m, 2, 3, 2), smooth (m,) bool), ``J[c, s]`` the
+    derivative of column c's point (m) with respect to the (x, y)
+    translation (m) of the body in its slot s (zero for the ground).
+
+    While no contact appears, vanishes or changes its vertices, every point
+    is an affine function of the two bodies' translations (a corner of one
+    footprint, a crossing of two edges, a knob of the upper part, an end of
+    a side overlap), so its derivative is read exactly off
+    :func:`scene_columns` at shifted copies of the scene: the bodies of one
+    colour of the contact graph (no two touching) move together, by +h and
+    -h along x and along y. Only plain blocks move (J is zero for Lego
+    parts, whose knob connections hold only where studs coincide). ``smooth`` is False for a column whose two
+    one-sided derivatives differ (a kink, e.g. aligned edges: the contact
+    polygon changes which body's corner it follows) or whose contacts
+    change within h; J is then their mean."""
+    n = scene.n
+    pair, force, points, kind, _ = scene_columns(scene, params)
+    m = len(pair)
+    J = np.zeros((m, 2, 3, 2))
+    smooth = np.ones(m, bool)
+    if m == 0:
+        return J, smooth
+
+    def groups(pr, f, k):  # the columns of one contact: same bodies, kind and direction, in their order
+        out: dict = {}
+        for c, key in enumerate(zip(pr[:, 0].tolist(), pr[:, 1].tolist(), k.tolist(),
+                                    map(tuple, np.round(f, 6).tolist()))):
+            out.setdefault(key, []).append(c)
+        return out
+
+    base = groups(pair, force, kind)
+
+    def moved_points(d):  # each column's point in the shifted scene (NaN: its contact changed)
+        p2, f2, q2, k2, _ = scene_columns(shifted(scene, d, params), params)
+        out = np.full((m, 3), np.nan)
+        other = groups(p2, f2, k2)
+        for key, idx in base.items():
+            idx2 = other.get(key, [])
+            if len(idx2) == len(idx):
+                out[idx] = q2[idx2]
+        return out
+    # greedy colouring of the contact graph: bodies of one colour share no column
+    nbr = [set() for _ in range(n)]
+    for a, b in pair.tolist():
+        if b < n and a != b:
+            nbr[a].add(b)
+            nbr[b].add(a)
+    colour = np.full(n, -1)
+    for i in np.argsort([-len(v) for v in nbr], kind="stable"):
+        if scene.kind[i] != BLOCK:
+            continue  # Lego parts join where studs coincide: any move off the stud lattice breaks that
+        used = {colour[j] for j in nbr[i]}
+        colour[i] = next(c for c in range(n + 1) if c not in used)
+    for c in range(int(colour.max()) + 1):
+        moved = colour == c
+        for axis in range(2):
+            side = []
+            for sign in (1.0, -1.0):
+                d = np.zeros((n, 2))
+                d[moved, axis] = sign * h
+                dp = (moved_points(d) - points) / (sign * h)
+                dp[(np.abs(dp) > _MAX_POINT_RATE).any(1)] = np.nan  # vertices renumbered: the contact changed
+                side.append(dp)
+            hit = moved[np.minimum(pair, n - 1)] & (pair < n)  # (m, 2): the slot's body moved
+            ok = ~np.isnan(side[0]).any(1), ~np.isnan(side[1]).any(1)
+            mean = np.where((ok[0] & ok[1])[:, None], (side[0] + side[1]) / 2,
+                            np.where(ok[0][:, None], side[0], np.where(ok[1][:, None], side[1], 0.0)))
+            kink = ~(ok[0] & ok[1]) | (np.abs(np.nan_to_num(side[0] - side[1])).max(1) > 1e-6)
+            smooth &= ~(hit.any(1) & kink)
+            for s in range(2):
+                J[:, s, :, axis] = np.where(hit[:, s:s + 1], mean, J[:, s, :, axis])
+    return J, smooth
+
+
 def compile_scene(scene: Scene, params: Params = Params()) -> ForceModel:
     """Build the force model of a :class:`~stablelego_jax.scene.Scene` from the
     contacts of :func:`~stablelego_jax.contacts.scene_contacts` (studs of
@@ -275,15 +382,7 @@ def compile_scene(scene: Scene, params: Params = Params()) -> ForceModel:
     one level or two adjacent ones.
     """
     n = scene.n
-    centre, _, _ = boxes(scene, params.stud, params.layer / 3)
-    c = scene_contacts(scene, params.stud, params.layer / 3)
-    a, b, k = len(c.lego_pair), len(c.knob_pair), len(c.push_pair)
-    ez = np.tile([0.0, 0.0, 1.0], (a, 1))
-    ex, ey = np.tile([1.0, 0.0, 0.0], (b, 1)), np.tile([0.0, 1.0, 0.0], (b, 1))
-    pair = np.concatenate([c.lego_pair, c.knob_pair, c.knob_pair, c.push_pair]).astype(np.int64)
-    forces = np.concatenate([ez, ex, ey, c.push_dir])
-    points = np.concatenate([c.lego_point, c.knob_point, c.knob_point, c.push_point])
-    kind = np.concatenate([np.full(a, NORMAL), np.full(2 * b, KNOB), np.full(k, SIDE)]).astype(np.int8)
+    pair, forces, points, kind, centre = scene_columns(scene, params)
     coef = column_wrenches(pair, forces, points, centre) if len(pair) else np.zeros((0, 2, 6))
     m = len(kind)
     col_brick = pair.astype(np.int32)

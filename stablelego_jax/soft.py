@@ -38,7 +38,8 @@ from typing import NamedTuple, Sequence
 import numpy as np
 
 from .layout import Layout, LayoutError, make_layout, table_i_bricks
-from .model import ForceModel, Params, compile_layout, normal_groups
+from .model import ForceModel, Params, column_wrenches, compile_layout, normal_groups, point_jacobian, scene_columns
+from .scene import BLOCK, Scene
 
 __all__ = [
     "Candidate",
@@ -46,6 +47,9 @@ __all__ = [
     "SoftLayout",
     "compile_soft",
     "soft_problem",
+    "ScenePositions",
+    "scene_positions",
+    "shifted_wrenches",
     "candidate_brick",
     "compile_placements",
     "placement_pairs",
@@ -287,22 +291,10 @@ def compile_soft(layout: Layout, candidates: Sequence[Candidate] = (), params: P
         start += k
     n = start
     col_brick = np.concatenate(cols_b).astype(np.int64)
-    col_brick = np.where(col_brick < 0, n, col_brick).astype(np.int32)
-    col_coef = np.concatenate(cols_c)
-    col_kind = np.concatenate(cols_k).astype(np.int8)
-    m = len(col_kind)
-    group = normal_groups(col_brick, col_kind, n)
-    prob = SoftProblem(
-        col_brick=col_brick,
-        col_coef=col_coef.astype(np.float64),
-        col_kind=col_kind,
-        col_mask=np.ones(m, bool),
-        group=group,
-        mass=np.concatenate(masses),
-        brick_mask=np.ones(n, bool),
-        unit=np.concatenate(unit).astype(np.int32),
-        level=np.concatenate([layout.pos[:, 2]] + [np.asarray(c.pos)[:, 2] for c in candidates]).astype(np.int32),
-    )
+    col_brick = np.where(col_brick < 0, n, col_brick)
+    prob = _problem(col_brick, np.concatenate(cols_c), np.concatenate(cols_k), np.concatenate(masses),
+                    np.concatenate(unit), np.concatenate([layout.pos[:, 2]] + [np.asarray(c.pos)[:, 2]
+                                                                               for c in candidates]))
     return SoftLayout(
         base=layout, candidates=tuple(candidates), problem=prob, params=params,
         unit_bricks=unit_bricks, unit_index=np.asarray(unit_index, np.int64),
@@ -388,6 +380,71 @@ def compile_placements(pos, size, mass, params: Params = Params()) -> SoftProble
     )
 
 
-def soft_problem(layout: Layout, params: Params = Params()) -> SoftProblem:
-    """The :class:`SoftProblem` of a plain layout (every brick its own unit)."""
+class ScenePositions(NamedTuple):
+    """What moving a scene's bodies does to its columns (all m columns of
+    :func:`~stablelego_jax.model.compile_scene`, in its order).
+
+    pair: (m, 2) int32 bodies (n = ground); force: (m, 3) direction on slot
+    0; point: (m, 3) point of application, m; jac: (m, 2, 3, 2) its
+    derivative with respect to the (x, y) translation of each slot's body
+    (:func:`~stablelego_jax.model.point_jacobian`); smooth: (m,) bool, False
+    at a kink; centre: (n, 3) body centres, m; movable: (n,) bool plain
+    blocks (Lego parts keep their place: their knobs hold only on the grid).
+    """
+
+    pair: np.ndarray
+    force: np.ndarray
+    point: np.ndarray
+    jac: np.ndarray
+    smooth: np.ndarray
+    centre: np.ndarray
+    movable: np.ndarray
+
+
+def scene_positions(scene: Scene, params: Params = Params()) -> ScenePositions:
+    """The :class:`ScenePositions` of ``scene`` (see :func:`shifted_wrenches`)."""
+    pair, force, point, _, centre = scene_columns(scene, params)
+    jac, smooth = point_jacobian(scene, params)
+    return ScenePositions(pair=pair.astype(np.int32), force=force, point=point, jac=jac, smooth=smooth,
+                          centre=centre, movable=scene.kind == BLOCK)
+
+
+def shifted_wrenches(geo: ScenePositions, shift, xp=np):
+    """(m, 2, 6) column wrenches (``SoftProblem.col_coef``) with every movable
+    body moved horizontally by ``shift`` (n, 2) m, to first order in the
+    contact points (exact while no contact changes: they are affine in the
+    translations) and exactly in the bodies' centres. ``xp``: numpy or
+    jax.numpy (then differentiable in ``shift``)."""
+    n = len(geo.centre)
+    d = xp.where(xp.asarray(geo.movable)[:, None], xp.asarray(shift), 0.0)
+    d_ext = xp.concatenate([d, xp.zeros((1, 2))])
+    move = (xp.einsum("kij,kj->ki", geo.jac[:, 0], d_ext[geo.pair[:, 0]])
+            + xp.einsum("kij,kj->ki", geo.jac[:, 1], d_ext[np.minimum(geo.pair[:, 1], n)]))
+    centre = geo.centre + xp.concatenate([d, xp.zeros((n, 1))], axis=1)
+    return column_wrenches(geo.pair, geo.force, geo.point + move, centre, xp=xp)
+
+
+def _problem(col_brick, col_coef, col_kind, mass, unit, level) -> SoftProblem:
+    """A SoftProblem of real columns and bricks (``n`` = ``len(mass)``, the
+    baseplate / ground in ``col_brick``)."""
+    n, m = len(mass), len(col_kind)
+    col_brick = np.asarray(col_brick, np.int32)
+    col_kind = np.asarray(col_kind, np.int8)
+    return SoftProblem(
+        col_brick=col_brick, col_coef=np.asarray(col_coef, np.float64), col_kind=col_kind,
+        col_mask=np.ones(m, bool), group=normal_groups(col_brick, col_kind, n),
+        mass=np.asarray(mass, np.float64), brick_mask=np.ones(n, bool), unit=np.asarray(unit, np.int32),
+        level=np.asarray(level, np.int32),
+    )
+
+
+def soft_problem(layout: Layout | Scene, params: Params = Params()) -> SoftProblem:
+    """The :class:`SoftProblem` of a plain layout or a
+    :class:`~stablelego_jax.scene.Scene` (every brick or body its own unit;
+    a scene's columns are :func:`~stablelego_jax.model.compile_scene`'s and
+    its levels those of its contact graph)."""
+    if isinstance(layout, Scene):
+        model = compile_layout(layout, params)
+        cb, coef, kind = _columns(model)
+        return _problem(cb, coef, kind, layout.mass, np.arange(layout.n), model.layer)
     return compile_soft(layout, (), params).problem

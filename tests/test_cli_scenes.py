@@ -83,10 +83,10 @@ def test_export_refuses_what_a_format_cannot_hold(tmp_path, capsys):
     assert os.listdir(tmp_path) == []
 
 
-def test_repair_refuses_scenes(tmp_path, capsys):
+def test_repair_adds_no_bricks_to_scenes(tmp_path, capsys):
     src = os.path.join(EXT, "stack_pushed.json")
     assert cli.main(["repair", src, "--out", str(tmp_path / "o.json")]) == 1
-    assert "cannot be repaired yet" in capsys.readouterr().err
+    assert "cannot be repaired by adding bricks yet (--move slides plain blocks)" in capsys.readouterr().err
     assert not (tmp_path / "o.json").exists()
 
 

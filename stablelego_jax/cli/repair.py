@@ -1,5 +1,5 @@
-"""``stablelego repair IN --out OUT [--region bbox|shape|any] [--max-add K|auto] [--time S] [--allow-remove] [--png P] [--html P]``:
-the command line of :mod:`stablelego_jax.design.repair`."""
+"""``stablelego repair IN --out OUT [--region bbox|shape|any] [--max-add K|auto] [--time S] [--allow-remove] [--move] [--png P] [--html P]``:
+the command line of :mod:`stablelego_jax.design.repair` (and, with ``--move``, :mod:`stablelego_jax.design.move`)."""
 from __future__ import annotations
 
 import json
@@ -20,7 +20,9 @@ def add_parser(sub) -> None:
                     "solver, and the best is added (when several clusters of bricks fail, the best of each cluster "
                     "together first); repeated until the exact solver says the layout stands, --max-add bricks "
                     "are spent or --time runs out. Original bricks keep their keys and places; new bricks get new "
-                    "keys. OUT is written in the format of IN only when the result stands.",
+                    "keys. OUT is written in the format of IN only when the result stands. With --move (scenes "
+                    "of plain blocks): slide blocks instead, along the gradient of the loss with respect to "
+                    "their positions.",
     )
     r.add_argument("layout", metavar="IN", help="layout file (JSON, text, .ldr) or dataset object folder")
     r.add_argument("--out", required=True, metavar="OUT", help="where to write the repaired layout (format of IN)")
@@ -34,6 +36,11 @@ def add_parser(sub) -> None:
     r.add_argument("--allow-remove", action="store_true",
                    help="allow replacing a user brick by a longer one, or a weak brick's row by a re-merge of it "
                         "(otherwise user bricks are never touched)")
+    r.add_argument("--move", action="store_true",
+                   help="scenes: move plain blocks (along the loss gradient with respect to their positions, each "
+                        "line searched with the exact solver) instead of adding bricks")
+    r.add_argument("--move-blocks", type=int_at_least(1), default=1, metavar="K",
+                   help="with --move: most distinct blocks to move (default 1)")
     r.add_argument("--png", metavar="P", help="before/after heat maps (PNG)")
     r.add_argument("--html", metavar="P", help="before/after 3D heat map page (a slider between the two)")
     r.add_argument("--library", help="brick library JSON of IN (default: the StableLego library)")
@@ -153,11 +160,17 @@ def cmd_repair(args) -> int:
     path = args.layout
     try:
         layout = load_layout(path, args.library)
-        from ..scene import Scene
+        from ..scene import BLOCK, Scene
 
+        if args.move:
+            if not isinstance(layout, Scene) or not (layout.kind == BLOCK).any():
+                raise LayoutError(path, "--move slides plain blocks, and this layout has none (repair without "
+                                        "--move adds bricks)")
+            return _cmd_move(args, layout)
         if isinstance(layout, Scene):
             raise LayoutError(path, "repair adds grid bricks to layouts of grid bricks; scenes of blocks or "
-                                    "rotated bricks cannot be repaired yet")
+                                    "rotated bricks cannot be repaired by adding bricks yet (--move slides "
+                                    "plain blocks)")
         if layout.fmt == "dataset" and os.path.exists(args.out):
             raise LayoutError(args.out, "already exists (dataset objects are written as new folders)")
         if layout.fmt == "dataset" and not os.path.isdir(os.path.dirname(os.path.abspath(args.out))):
@@ -228,4 +241,55 @@ def cmd_repair(args) -> int:
             print(f"  before/after: {png}")
         if page:
             print(f"  3D page: {page}")
+    return 0 if result.stable else 1
+
+
+def _cmd_move(args, scene) -> int:
+    """``repair --move``: :func:`~stablelego_jax.design.move.move_repair` on a scene."""
+    from ..design.move import MoveOptions, move_repair
+    from ..files import staged_outputs
+    from ..formats.reader import write_layout
+
+    path = args.layout
+    with staged_outputs([args.png, args.html, args.out]) as stage:
+        result = move_repair(scene, MoveOptions(max_blocks=args.move_blocks, time_s=args.time))
+        b, a = result.before, result.after
+        if args.png:
+            from ..render_scene import render_scene
+
+            render_scene(a.layout, [a.scores[k] for k in a.layout.keys], stage(args.png),
+                         title="after moving" if result.stable else "after (still unstable)")
+        if args.html:
+            from ..render_html import Frame, html_frames
+
+            html_frames([Frame(b.layout, [b.scores[k] for k in b.layout.keys], label="before",
+                               note=f"before: {'stable' if b.stable else 'UNSTABLE'}, weakest {b.weakest!r}"),
+                         Frame(a.layout, [a.scores[k] for k in a.layout.keys], label="after",
+                               note=f"after: {'stable' if a.stable else 'still UNSTABLE'}; "
+                                    + "; ".join(m.describe() for m in result.moves))], stage(args.html),
+                        title=f"{path}: repair --move")
+        if result.stable:
+            write_layout(result.layout, stage(args.out), fmt="json")
+    if args.json:
+        print(json.dumps({
+            "file": path, "out": args.out if result.stable else None, "stable_before": b.stable,
+            "stable": result.stable, "moved": [{"key": m.key, "shift_m": [round(v, 6) for v in m.shift],
+                                                "gradient": [round(v, 6) for v in m.grad]} for m in result.moves],
+            "exact_calls": result.exact_calls, "soft_calls": result.soft_calls, "time_s": round(result.time_s, 3),
+            "method": "move", "png": args.png, "html": args.html,
+        }), flush=True)
+    else:
+        n_fail = sum(v >= 1.0 for v in b.scores.values())
+        head = f"{path}: {'STABLE' if b.stable else f'UNSTABLE (weakest {b.weakest!r}, {n_fail} failing)'}"
+        if b.stable:
+            print(f"{head}: nothing to repair")
+        else:
+            print(f"{head} -> {'STABLE' if result.stable else 'still UNSTABLE'} after {len(result.moves)} "
+                  f"move{'s' * (len(result.moves) != 1)} ({result.exact_calls} exact + {result.soft_calls} gradient "
+                  f"solver calls, {result.time_s:.1f} s)" + ("" if result.stable else "; not written"))
+        for m in result.moves:
+            print(f"  {m.describe()}")
+        for what, p in (("wrote", args.out if result.stable else None), ("after", args.png), ("3D page", args.html)):
+            if p:
+                print(f"  {what}: {p}")
     return 0 if result.stable else 1

@@ -20,7 +20,8 @@ existence (divided by the weights), which keeps them regular at ``w = 0``.
 :func:`central_path` has a custom VJP (implicit differentiation): one
 transposed Newton system ``J^T lam = dL/dx`` at the solution (J: the
 Jacobian of the barrier problem's optimality conditions R), returning
-``-(dR/dtheta)^T lam`` for theta = (weights, loads). Nothing is unrolled.
+``-(dR/dtheta)^T lam`` for theta = (weights, loads, the columns' wrenches
+``prob.col_coef``; no other leaf of the problem is differentiated). Nothing is unrolled.
 ``jit`` and ``vmap`` work; float64 is switched on inside (forward and
 backward), whatever the caller's JAX setting.
 """
@@ -649,18 +650,23 @@ def _x_bwd(opts, res, ct):
     _, pc = _barrier_system(x, ctx0, ctx0, dpsi, ddpsi, opts)
     lam, y, _ = _solve(ctx0, _factor(ctx0, pc, transpose=True), ct[0])
 
-    def rfun(w, l):  # R with the residual rows' price frozen
-        return _barrier_system(x, soft_context(w, l, prob, opts.params), None, dpsi, ddpsi, opts)[0]
+    def rfun(w, l, cc):  # R with the residual rows' price frozen
+        return _barrier_system(x, soft_context(w, l, prob._replace(col_coef=cc), opts.params), None, dpsi, ddpsi,
+                               opts)[0]
 
-    def rhofun(w, l):
-        ctx = soft_context(w, l, prob, opts.params)
+    def rhofun(w, l, cc):
+        ctx = soft_context(w, l, prob._replace(col_coef=cc), opts.params)
         return brick_residual(ctx, column_force(x, ctx))
 
-    _, vjp = jax.vjp(rfun, weights, loads)
-    gw, gl = vjp(jax.tree_util.tree_map(jnp.negative, lam))
-    _, vjp_rho = jax.vjp(rhofun, weights, loads)
-    gw2, gl2 = vjp_rho(-y)
-    return gw + gw2, gl + gl2, None
+    cc = jnp.asarray(prob.col_coef, jnp.float64)
+    _, vjp = jax.vjp(rfun, weights, loads, cc)
+    gw, gl, gc = vjp(jax.tree_util.tree_map(jnp.negative, lam))
+    _, vjp_rho = jax.vjp(rhofun, weights, loads, cc)
+    gw2, gl2, gc2 = vjp_rho(-y)
+    # the problem's only differentiable leaf: the columns' wrenches (moving bodies, :mod:`stablelego_jax.loss`)
+    prob_ct = jax.tree_util.tree_map(lambda _: None, prob)._replace(
+        col_coef=(gc + gc2).astype(jnp.result_type(prob.col_coef)))
+    return gw + gw2, gl + gl2, prob_ct
 
 
 central_path.defvjp(_x_fwd, _x_bwd)
