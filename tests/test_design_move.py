@@ -61,9 +61,11 @@ def test_position_gradient_matches_central_differences():
 
 def test_repair_move_makes_the_8_level_stack_stand(tmp_path, capsys):
     out = tmp_path / "fixed.json"
-    assert cli.main(["repair", STACK8, "--move", "--out", str(out), "--json"]) == 0
+    page = tmp_path / "move.html"
+    assert cli.main(["repair", STACK8, "--move", "--out", str(out), "--json", "--html", str(page)]) == 0
     rec = json.loads(capsys.readouterr().out)
     assert rec["stable"] and not rec["stable_before"] and len(rec["moved"]) == 1
+    assert rec["html"] == str(page) and f"moved block '{rec['moved'][0]['key']}' by" in page.read_text()
     before, after = load_layout(STACK8), load_layout(str(out))
     assert after.keys == before.keys and np.allclose(after.size, before.size) and np.allclose(after.mass, before.mass)
     changed = np.nonzero(np.abs(after.pos - before.pos).max(1) > 1e-9)[0]

@@ -151,6 +151,22 @@ def _write(result, src: str, out: str, library) -> None:
         write_layout(lay, out, fmt="json", library=library)
 
 
+def _head(path: str, before) -> str:
+    """The first words of the report: the verdict before repair."""
+    n_fail = sum(v >= 1.0 for v in before.scores.values())
+    return f"{path}: {'STABLE' if before.stable else f'UNSTABLE (weakest {before.weakest!r}, {n_fail} failing)'}"
+
+
+def _page(b, a, after_note: str, out: str, title: str) -> None:
+    """The before/after 3D page of analyses ``b`` and ``a``."""
+    from ..render_html import Frame, html_frames
+
+    html_frames([Frame(b.layout, [b.scores[k] for k in b.layout.keys], label="before",
+                       note=f"before: {'stable' if b.stable else 'UNSTABLE'}, weakest {b.weakest!r}"),
+                 Frame(a.layout, [a.scores[k] for k in a.layout.keys], label="after", note=after_note)],
+                out, title=title)
+
+
 def cmd_repair(args) -> int:
     from ..files import staged_outputs
     from ..formats.reader import load_layout
@@ -194,15 +210,8 @@ def cmd_repair(args) -> int:
                 png = args.png
             page = None
             if args.html:
-                from ..render_html import Frame, html_frames
-
-                b, a = result.before, result.after
-                html_frames([Frame(b.layout, [b.scores[k] for k in b.layout.keys], label="before",
-                                   note=f"before: {'stable' if b.stable else 'UNSTABLE'}, weakest {b.weakest!r}"),
-                             Frame(a.layout, [a.scores[k] for k in a.layout.keys], label="after",
-                                   note=f"after repair: {'stable' if a.stable else 'still UNSTABLE'}, "
-                                        f"{result.added} brick(s) added")], stage(args.html),
-                            title=f"{path}: repair")
+                _page(result.before, result.after, f"after repair: {'stable' if result.stable else 'still UNSTABLE'}, "
+                      f"{result.added} brick(s) added", stage(args.html), f"{path}: repair")
                 page = args.html
             if result.stable:  # the dataset folder last: the files above are complete by now
                 _write(result, path, args.out if layout.fmt == "dataset" else stage(args.out), args.library)
@@ -221,8 +230,7 @@ def cmd_repair(args) -> int:
             "time_s": round(result.time_s, 3), "method": result.method, "png": png, "html": page,
         }), flush=True)
     else:
-        n_fail = sum(s >= 1.0 for s in b.scores.values())
-        head = f"{path}: {'STABLE' if b.stable else f'UNSTABLE (weakest {b.weakest!r}, {n_fail} failing)'}"
+        head = _head(path, b)
         if b.stable:
             print(f"{head}: nothing to repair")
         elif result.stable:
@@ -260,14 +268,8 @@ def _cmd_move(args, scene) -> int:
             render_scene(a.layout, [a.scores[k] for k in a.layout.keys], stage(args.png),
                          title="after moving" if result.stable else "after (still unstable)")
         if args.html:
-            from ..render_html import Frame, html_frames
-
-            html_frames([Frame(b.layout, [b.scores[k] for k in b.layout.keys], label="before",
-                               note=f"before: {'stable' if b.stable else 'UNSTABLE'}, weakest {b.weakest!r}"),
-                         Frame(a.layout, [a.scores[k] for k in a.layout.keys], label="after",
-                               note=f"after: {'stable' if a.stable else 'still UNSTABLE'}; "
-                                    + "; ".join(m.describe() for m in result.moves))], stage(args.html),
-                        title=f"{path}: repair --move")
+            _page(b, a, f"after: {'stable' if a.stable else 'still UNSTABLE'}; "
+                  + "; ".join(m.describe() for m in result.moves), stage(args.html), f"{path}: repair --move")
         if result.stable:
             write_layout(result.layout, stage(args.out), fmt="json")
     if args.json:
@@ -279,8 +281,7 @@ def _cmd_move(args, scene) -> int:
             "method": "move", "png": args.png, "html": args.html,
         }), flush=True)
     else:
-        n_fail = sum(v >= 1.0 for v in b.scores.values())
-        head = f"{path}: {'STABLE' if b.stable else f'UNSTABLE (weakest {b.weakest!r}, {n_fail} failing)'}"
+        head = _head(path, b)
         if b.stable:
             print(f"{head}: nothing to repair")
         else:
