@@ -2,7 +2,7 @@
 --skip-unsupported and what is left out, bricks, plates, stable, time.
 
 Usage: python benchmarks/ldraw_models.py ROOT [ROOT ...] [--out FILE] [--max-parts 1000]
-                                         [--jax-max-parts 700] [--table]
+                                         [--jax-max-parts 700] [--table] [--recheck-export]
 
 Each ROOT is a checkout of a repository of LDraw models, e.g.
 
@@ -66,9 +66,14 @@ def _as_scene(lay) -> Scene:
 
 
 def same_parts(a, b) -> bool:
-    """Do two readings hold the same parts (in order): positions, sizes, yaws, masses?"""
+    """Do two readings hold the same parts under the same keys (the export
+    writes them layer by layer): positions, sizes, yaws, masses?"""
     sa, sb = _as_scene(a), _as_scene(b)
-    return (len(sa.keys) == len(sb.keys) and np.allclose(sa.pos, sb.pos, atol=1e-6)
+    if sorted(sa.keys) != sorted(sb.keys):
+        return False
+    where = {k: i for i, k in enumerate(sb.keys)}
+    sb = sb.subset([where[k] for k in sa.keys])
+    return (np.allclose(sa.pos, sb.pos, atol=1e-6)
             and np.allclose(sa.size, sb.size) and np.allclose(sa.mass, sb.mass)
             and np.allclose((sa.yaw - sb.yaw + 180) % 360 - 180, 0, atol=1e-6))
 
@@ -78,6 +83,14 @@ def heights(lay) -> Counter:
     if isinstance(lay, Scene):
         return Counter(int(round(h)) for h in lay.size[:, 2])
     return Counter({BRICK_H: lay.n})
+
+
+def round_trip(lay) -> tuple[bool, str]:
+    """(same parts after export and re-import, error text)."""
+    try:
+        return bool(same_parts(lay, parse_ldr(layout_to_ldr(lay), source="<export>"))), ""
+    except Exception as exc:
+        return False, str(exc)[:200]
 
 
 def run_one(name: str, path: str, max_parts: int, jax_max_parts: int) -> dict:
@@ -101,11 +114,9 @@ def run_one(name: str, path: str, max_parts: int, jax_max_parts: int) -> dict:
                grid=not isinstance(lay, Scene),
                left_out={k: c for k, (c, _) in sorted(report.items(), key=lambda kv: -kv[1][0])},
                n_left_out=sum(c for c, _ in report.values()))
-    try:
-        row["round_trip"] = bool(same_parts(lay, parse_ldr(layout_to_ldr(lay), source="<export>")))
-    except Exception as exc:
-        row["round_trip"] = False
-        row["round_trip_error"] = str(exc)[:200]
+    row["round_trip"], err = round_trip(lay)
+    if err:
+        row["round_trip_error"] = err
     for solver, cap in (("exact", max_parts), ("jax", jax_max_parts)):
         if lay.n > cap:
             row[solver] = {"skipped": f"more than {cap} parts"}
@@ -168,9 +179,19 @@ def main():
     ap.add_argument("--max-parts", type=int, default=1000, help="largest model the exact solver analyses")
     ap.add_argument("--jax-max-parts", type=int, default=700, help="largest model the JAX solver analyses")
     ap.add_argument("--table", action="store_true", help="only print the table of --out")
+    ap.add_argument("--recheck-export", action="store_true",
+                    help="only redo the export round trip of the rows of --out (after a change to the LDraw code)")
     args = ap.parse_args()
     done = read_rows(args.out, "name")
-    if not args.table:
+    if args.recheck_export:
+        paths = dict(model_files(args.roots))
+        for name, row in done.items():
+            if row["load"] != "error" and name in paths:
+                row["round_trip"], err = round_trip(read_ldr(paths[name], skip_unsupported=True))
+                row.pop("round_trip_error", None)
+                row.update({"round_trip_error": err} if err else {})
+                append_row(args.out, row)
+    elif not args.table:
         if not args.roots:
             ap.error("give at least one ROOT (a checkout of a repository of LDraw models)")
         print(f"# {platform.processor() or platform.machine()}, {os.cpu_count()} CPUs", file=sys.stderr)

@@ -367,3 +367,13 @@ def test_export_writes_what_it_reads(tmp_path):
                     [part_mass(3, 1, 3), part_mass(3, 1, 3), part_mass(4, 4, 1), 0.2],
                     ["3622", "3622", "3031", "1"], source="y.ldr", fmt="ldr")
     _same_scene(parse_ldr(layout_to_ldr(sc), source="y.ldr"), sc)
+    # parts on two stud lattices: the first in the file (on top) sets the lattice, the export writes the bottom
+    # part first and marks the anchor, so that reading it back puts every part where it was
+    two = "1 4 0 -48 0 1 0 0 0 1 0 0 0 1 3003.dat\n1 4 50 0 10 1 0 0 0 1 0 0 0 1 3003.dat\n"
+    sc = parse_ldr(two, source="two.ldr")
+    assert sc.pos.tolist() == [[0.0, 0.0, 6.0], [2.5, 0.5, 0.0]]
+    text = layout_to_ldr(sc)
+    lines = text.splitlines()
+    assert text.count('"anchor":true') == 1 and lines.index(next(ln for ln in lines if "anchor" in ln)) > \
+        lines.index(next(ln for ln in lines if ln.startswith("1 ")))  # the top part, written after the bottom one
+    _same_scene(parse_ldr(text, source="two.ldr"), sc)

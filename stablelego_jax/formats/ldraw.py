@@ -49,6 +49,7 @@ from .ldraw_parts import BRICK_H, LDRAW_PARTS, part_for, part_mass, part_number
 
 __all__ = [
     "yaw_matrix",
+    "first_stud",
     "flatten_ldr",
     "unsupported_message",
     "LDRAW_EXTS",
@@ -198,6 +199,13 @@ def _scene_to_ldr(scene: Scene, colors: list[int], step: str, header: bool, titl
     n = scene.n
     order = np.argsort(scene.pos[:, 2], kind="stable")
     lines = _header(scene.source, title, name) if header else []
+    # the reader puts the studs of the first square part on the baseplate's lattice: where that part of this
+    # file order is not on it, mark the scene's own anchor (its first square part) so that reading gives it back
+    square = np.nonzero(_square(scene.yaw) & (scene.kind == BRICK))[0]
+    first_out = next((i for i in order.tolist() if i in set(square.tolist())), None)
+    anchor = int(square[0]) if len(square) else None
+    if anchor is None or first_out is None or _on_lattice(scene, first_out) or not _on_lattice(scene, anchor):
+        anchor = None
     for out_i, i in enumerate(order.tolist()):
         key = scene.keys[i]
         if scene.kind[i] == BLOCK:
@@ -219,6 +227,8 @@ def _scene_to_ldr(scene: Scene, colors: list[int], step: str, header: bool, titl
         yaw = float(scene.yaw[i])
         if yaw % 90 != 0 or sx < sy:
             meta["yaw"] = yaw  # the reader would take the long side as the part's x
+        if i == anchor:
+            meta["anchor"] = True
         if meta:
             lines.append(_META + json.dumps(meta, separators=(",", ":")))
         rot = yaw_matrix(yaw if sx >= sy else yaw + 90.0)
@@ -552,6 +562,27 @@ def _default_id(sx: int, sy: int, height: int, number: str) -> str:
     return bid or number
 
 
+def _square(yaw):
+    """Turned by a multiple of 90 degrees (to 1e-9 of a quarter turn)?"""
+    return np.abs(np.asarray(yaw) / 90.0 - np.round(np.asarray(yaw) / 90.0)) < 1e-9
+
+
+def first_stud(centre, studs, yaw_deg: float) -> np.ndarray:
+    """(2,) centre of the stud in the local (-x, -y) corner of a part with
+    ``studs`` (2,) along its own axes, centred at ``centre`` (2,) and turned
+    by ``yaw_deg``; all in studs."""
+    t = math.radians(float(yaw_deg))
+    o = 0.5 - np.asarray(studs, np.float64) / 2
+    return np.asarray(centre, np.float64) + [o[0] * math.cos(t) - o[1] * math.sin(t),
+                                              o[0] * math.sin(t) + o[1] * math.cos(t)]
+
+
+def _on_lattice(scene: Scene, i: int) -> bool:
+    """Do part ``i``'s studs sit at half-integer stud coordinates (the baseplate's lattice)?"""
+    st = first_stud(scene.pos[i, :2], scene.size[i, :2], scene.yaw[i]) - 0.5
+    return bool(np.allclose(st, np.round(st), atol=_TOL))
+
+
 def _scene_of(parts, yaw, source: str, ground: bool) -> Scene:
     """The Scene of ``parts`` (see :func:`parse_ldr`), not yet checked for overlaps."""
     n = len(parts)
@@ -569,15 +600,16 @@ def _scene_of(parts, yaw, source: str, ground: bool) -> Scene:
     xy = P[:, [0, 2]] / LDU_STUD
     level = -(P[:, 1] / (LDU_LAYER / 3) + dims[:, 2])
     # one stud lattice: the studs of the first part turned by a multiple of 90 degrees at half-integers
-    square = np.nonzero(np.abs(yaw / 90.0 - np.round(yaw / 90.0)) < 1e-9)[0]
-    if len(square):
-        i = int(square[0])
-        t = math.radians(yaw[i])
-        o = 0.5 - studs[i] / 2
-        stud = xy[i] + [o[0] * math.cos(t) - o[1] * math.sin(t), o[0] * math.sin(t) + o[1] * math.cos(t)]
+    # (or of the part an export marked as its anchor), and that part's plate grid
+    marked = [i for i, p in enumerate(parts) if p.meta.get("anchor")]
+    square = np.nonzero(_square(yaw))[0]
+    anchor = marked[0] if marked else int(square[0]) if len(square) else None
+    if anchor is not None and _square(yaw[anchor]):
+        stud = first_stud(xy[anchor], studs[anchor], yaw[anchor])
         xy = xy - ((stud - 0.5) - np.round(stud - 0.5))
     xy = np.round(xy, 9) + 0.0
-    level = level - (level[0] - np.round(level[0]))  # the first part's plate grid
+    z0 = level[marked[0] if marked else 0]
+    level = level - (z0 - np.round(z0))  # that part's (else the first part's) plate grid
     level = np.where(np.abs(level - np.round(level)) <= _TOL, np.round(level), np.round(level, 9))
     level -= level.min() if ground else min(level.min(), 0.0)
     keys = _keys(parts)
