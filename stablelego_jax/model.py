@@ -292,7 +292,7 @@ def shifted(scene: Scene, shift: np.ndarray, params: Params = Params()) -> Scene
 _MAX_POINT_RATE = 100.0  # m per m: faster than this, a contact point was renumbered, not moved
 
 
-def point_jacobian(scene: Scene, params: Params = Params(), h: float = 1e-6):
+def point_jacobian(scene: Scene, params: Params = Params(), h: float = 1e-6, columns=None):
     """How the columns' points of application move when bodies move
     horizontally: (J (m, 2, 3, 2), smooth (m,) bool), ``J[c, s]`` the
     derivative of column c's point (m) with respect to the (x, y)
@@ -308,9 +308,10 @@ def point_jacobian(scene: Scene, params: Params = Params(), h: float = 1e-6):
     parts, whose knob connections hold only where studs coincide). ``smooth`` is False for a column whose two
     one-sided derivatives differ (a kink, e.g. aligned edges: the contact
     polygon changes which body's corner it follows) or whose contacts
-    change within h; J is then their mean."""
+    change within h; J is then their mean. ``columns``: the scene's
+    :func:`scene_columns`, when the caller has them already."""
     n = scene.n
-    pair, force, points, kind, _ = scene_columns(scene, params)
+    pair, force, points, kind, _ = columns if columns is not None else scene_columns(scene, params)
     m = len(pair)
     J = np.zeros((m, 2, 3, 2))
     smooth = np.ones(m, bool)

@@ -341,16 +341,23 @@ def analyze_sequence(layout: Layout | Scene, order: BuildOrder | None = None, pr
 # planning
 
 
-def _connected(layout: Layout | Scene, placed: set, remaining: Sequence[str]) -> list:
+def _resting_pairs(layout: Layout | Scene) -> list | None:
+    """[(upper, lower)] bodies of a Scene's Lego and bottom contacts (lower
+    ``n``: the ground); None for a Layout."""
+    if not isinstance(layout, Scene):
+        return None
+    from .contacts import scene_contacts
+
+    c = scene_contacts(layout)
+    return np.concatenate([c.lego_pair, c.push_pair[c.push_bottom.astype(bool)]]).tolist()
+
+
+def _connected(layout: Layout | Scene, placed: set, remaining: Sequence[str], pairs: list | None) -> list:
     """Bricks of ``remaining`` on the baseplate or with a knob on or under a
     placed brick (in a Scene: resting on the ground, or on or under a placed
-    body)."""
+    body, by its ``pairs``, :func:`_resting_pairs`)."""
     index = {k: i for i, k in enumerate(layout.keys)}
     if isinstance(layout, Scene):
-        from .contacts import scene_contacts
-
-        c = scene_contacts(layout)
-        pairs = np.concatenate([c.lego_pair, c.push_pair[c.push_bottom.astype(bool)]]).tolist()
         base = {layout.n} | {index[k] for k in placed}
         near = {a for a, b in pairs if b in base} | {b for a, b in pairs if a in base}
         return [k for k in remaining if index[k] in near]
@@ -386,6 +393,7 @@ def plan_order(layout: Layout | Scene, press: float | None = None, fixed: Sequen
     found = True
     index = {k: i for i, k in enumerate(layout.keys)}
     level = bottoms(layout)
+    resting = _resting_pairs(layout)  # the geometry does not change while planning
 
     def stands(k_list, lays):
         jobs = []
@@ -406,7 +414,7 @@ def plan_order(layout: Layout | Scene, press: float | None = None, fixed: Sequen
         remaining = remaining[k:]
         if not remaining or k:
             continue
-        cands = _connected(layout, set(base.fixed) | set(placed), remaining)
+        cands = _connected(layout, set(base.fixed) | set(placed), remaining, resting)
         cands = sorted(cands, key=lambda c: (level[index[c]], remaining.index(c)))[:max_candidates]
         cands = cands or remaining[:1]
         res = stands(cands, [prefix(placed + [c]) for c in cands])

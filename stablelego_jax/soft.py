@@ -403,8 +403,9 @@ class ScenePositions(NamedTuple):
 
 def scene_positions(scene: Scene, params: Params = Params()) -> ScenePositions:
     """The :class:`ScenePositions` of ``scene`` (see :func:`shifted_wrenches`)."""
-    pair, force, point, _, centre = scene_columns(scene, params)
-    jac, smooth = point_jacobian(scene, params)
+    cols = scene_columns(scene, params)
+    pair, force, point, _, centre = cols
+    jac, smooth = point_jacobian(scene, params, columns=cols)
     return ScenePositions(pair=pair.astype(np.int32), force=force, point=point, jac=jac, smooth=smooth,
                           centre=centre, movable=scene.kind == BLOCK)
 
@@ -419,7 +420,7 @@ def shifted_wrenches(geo: ScenePositions, shift, xp=np):
     d = xp.where(xp.asarray(geo.movable)[:, None], xp.asarray(shift), 0.0)
     d_ext = xp.concatenate([d, xp.zeros((1, 2))])
     move = (xp.einsum("kij,kj->ki", geo.jac[:, 0], d_ext[geo.pair[:, 0]])
-            + xp.einsum("kij,kj->ki", geo.jac[:, 1], d_ext[np.minimum(geo.pair[:, 1], n)]))
+            + xp.einsum("kij,kj->ki", geo.jac[:, 1], d_ext[geo.pair[:, 1]]))  # row n: the ground
     centre = geo.centre + xp.concatenate([d, xp.zeros((n, 1))], axis=1)
     return column_wrenches(geo.pair, geo.force, geo.point + move, centre, xp=xp)
 

@@ -27,7 +27,7 @@ import numpy as np
 from ..analysis import Analysis, analyze_layout
 from ..layout import LayoutError
 from ..model import Params, shifted
-from ..scene import BLOCK, Scene, make_scene
+from ..scene import Scene, make_scene
 
 __all__ = ["MoveOptions", "Move", "MoveResult", "move_repair"]
 
@@ -146,7 +146,7 @@ def move_repair(scene: Scene, opts: MoveOptions = MoveOptions()) -> MoveResult:
         for b in order:
             u = -g[b] / mag[b]
             reach = opts.reach if opts.reach is not None else float(np.max(cur.size[b, :2]))
-            if cur.kind[b] != BLOCK or reach <= 0:
+            if reach <= 0:
                 continue
             ladder = [opts.first * opts.growth ** k for k in
                       range(int(np.floor(np.log(max(reach / opts.first, 1.0)) / np.log(opts.growth))) + 1)]
@@ -161,7 +161,7 @@ def move_repair(scene: Scene, opts: MoveOptions = MoveOptions()) -> MoveResult:
                 tried.append((t, a.stable))
                 if a.stable:
                     continue
-                if tried and any(st for _, st in tried[:-1]):
+                if any(st for _, st in tried[:-1]):
                     break  # past the standing stretch
                 key = _badness(a)
                 if best is None or key < best[0]:

@@ -202,7 +202,8 @@ def _scene_to_ldr(scene: Scene, colors: list[int], step: str, header: bool, titl
     # the reader puts the studs of the first square part on the baseplate's lattice: where that part of this
     # file order is not on it, mark the scene's own anchor (its first square part) so that reading gives it back
     square = np.nonzero(_square(scene.yaw) & (scene.kind == BRICK))[0]
-    first_out = next((i for i in order.tolist() if i in set(square.tolist())), None)
+    sq = set(square.tolist())
+    first_out = next((i for i in order.tolist() if i in sq), None)
     anchor = int(square[0]) if len(square) else None
     if anchor is None or first_out is None or _on_lattice(scene, first_out) or not _on_lattice(scene, anchor):
         anchor = None
