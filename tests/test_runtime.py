@@ -126,6 +126,31 @@ def test_executables_are_bounded(monkeypatch):
         C.clear()
 
 
+def test_executables_are_let_go_when_memory_mappings_run_short(monkeypatch):
+    """Past the mapping budget (half of vm.max_map_count) the cache keeps
+    only the newest executable, whatever its count limit."""
+    monkeypatch.setenv("STABLELEGO_CACHE", "0")
+    C.clear()
+    held = C.mappings()
+    if held is None:
+        pytest.skip("no /proc/self/maps on this system")
+    assert C.map_budget() is None or C.map_budget() > 1000
+    try:
+        def f(x):
+            return (x * 3.0,)
+
+        C.compiled("triple", f, None, (np.zeros(3),))
+        C.compiled("triple", f, None, (np.zeros(4),))
+        assert C.cache_size() == 2
+        monkeypatch.setattr(C, "map_budget", lambda: 10)  # fewer than this process holds
+        ev = C.STATS.evicted
+        exe = C.compiled("triple", f, None, (np.zeros(5),))
+        assert C.cache_size() == 1 and C.STATS.evicted == ev + 2
+        np.testing.assert_allclose(np.asarray(exe(np.ones(5))[0]), 3.0)
+    finally:
+        C.clear()
+
+
 def test_compiled_keeps_float64_inputs_float64(monkeypatch):
     monkeypatch.setenv("STABLELEGO_CACHE", "0")
     exe = C.compiled("plus-tiny", lambda x: (x + 1e-12,), None, (np.zeros(2),))

@@ -3,7 +3,11 @@
 :func:`compiled` returns an ahead-of-time compiled executable of a pure
 function of flat arrays, for the shapes and dtypes of example arguments,
 and keeps it in a bounded in-process cache (least recently used first out:
-the number of executables a long run holds stays bounded). Across
+the number of executables a long run holds stays bounded, at most 32, and
+so do the memory mappings of their machine code: XLA maps each compiled
+kernel apart, 400-2000 mappings per solver executable, so the cache also
+lets go of executables while the process holds more than half of the
+kernel's ``vm.max_map_count``). Across
 processes two disk caches under :func:`~stablelego_jax.runtime.cache_dir`
 spare the work: the function traced and lowered once, stored with
 ``jax.export`` (``exported/``), and XLA's compiled code in JAX's persistent
@@ -32,7 +36,8 @@ import numpy as np
 from ..files import atomic_write
 from ..runtime import cache_dir, float64, use_persistent_cache
 
-__all__ = ["CompileStats", "STATS", "compiled", "clear", "set_limit", "cache_size", "code_digest"]
+__all__ = ["CompileStats", "STATS", "compiled", "clear", "set_limit", "cache_size", "code_digest", "map_budget",
+           "mappings"]
 
 
 @dataclasses.dataclass
@@ -72,9 +77,33 @@ def clear() -> None:
     _CACHE.clear()
 
 
+@functools.lru_cache(maxsize=1)
+def map_budget() -> int | None:
+    """Memory mappings this process may hold before the cache lets go of
+    executables: half of Linux's ``vm.max_map_count`` (None elsewhere)."""
+    try:
+        with open("/proc/sys/vm/max_map_count", "rb") as fh:
+            return int(fh.read()) // 2
+    except (OSError, ValueError):
+        return None
+
+
+def mappings() -> int | None:
+    """Memory mappings this process holds now (Linux; None elsewhere)."""
+    try:
+        with open("/proc/self/maps", "rb") as fh:
+            return fh.read().count(b"\n")
+    except OSError:
+        return None
+
+
 def _evict() -> None:
     while len(_CACHE) > _LIMIT["n"]:
         _CACHE.popitem(last=False)
+        STATS.evicted += 1
+    budget = map_budget()
+    while budget is not None and len(_CACHE) > 1 and (mappings() or 0) > budget:
+        _CACHE.popitem(last=False)  # its code is unmapped as the executable is freed
         STATS.evicted += 1
 
 
