@@ -45,9 +45,11 @@ class Params:
     largest drag within ``drag_rtol * T`` of T counts as reaching T (a drag
     exactly at capacity, as in knife-edge levers, comes out of any solver a
     few ulps to either side of T); ridge: weight of the term
-    ``ridge / (2 W) |f|^2`` (W: total weight, N) that the solvers add to
-    Eq. 9's cost so that its optimum, and so every score, is unique: the
-    canonical force distribution (see ``solvers/exact.py``); 0: the plain LP.
+    ``ridge / (2 W) |f|^2`` (W: total weight, N) that the JAX solver adds to
+    Eq. 9's cost so that it returns the canonical force distribution, the
+    least-norm optimum, which the exact solvers compute in two stages (see
+    ``solvers/exact.py``), so that every score is unique; 0: the plain LP
+    (every solver returns an optimum of its own).
     """
 
     stud: float = 0.0078

@@ -118,3 +118,30 @@ def test_least_norm_term_gives_the_exact_canonical_scores():
     assert jx.converged and jx.weakest == ex.weakest
     np.testing.assert_allclose([jx.scores[k] for k in lay.keys], [ex.scores[k] for k in lay.keys], atol=1e-3)
     assert jx.objective == pytest.approx(ex.objective, rel=1e-5)
+
+
+@pytest.mark.parametrize("name", ["lever_0342.json", "vox_floating_0215.json"])
+def test_polished_jax_reaches_the_two_stage_least_norm_optimum(name):
+    """On layouts whose optimal set is wide (a one-stage ridge QP left 0.016
+    between solvers), the polished JAX interior point and the exact two-stage
+    least-norm optimum give the same scores within 1e-3."""
+    lay = load_layout(os.path.join(os.path.dirname(__file__), "data", name))
+    r = solve_exact(compile_layout(lay))
+    assert r.canonical and "least norm Clarabel Solved" in r.status
+    ex = analyze_layout(lay, solver="exact")
+    jx = analyze_layout(lay, solver="jax", fallback=False)
+    assert jx.converged and jx.weakest == ex.weakest and jx.stable == ex.stable
+    np.testing.assert_allclose([jx.scores[k] for k in lay.keys], [ex.scores[k] for k in lay.keys], atol=1e-3)
+
+
+def test_polishing_keeps_a_converged_answer():
+    """A polishing tolerance that cannot be reached ends at a breakdown,
+    a lost tolerance or max_iter, and the answer stays converged."""
+    from stablelego_jax.solvers.ipm import IPMOptions
+
+    lay = load_layout(os.path.join(os.path.dirname(__file__), "data", "lever_0342.json"))
+    a = analyze_layout(lay, solver="jax", fallback=False)
+    b = analyze_layout(lay, solver="jax", opts=IPMOptions(polish_gap_abs=0.0, polish_gap_rel=0.0, max_iter=40),
+                       fallback=False)
+    assert a.converged and b.converged and b.iters >= a.iters
+    np.testing.assert_allclose([b.scores[k] for k in lay.keys], [a.scores[k] for k in lay.keys], atol=1e-4)

@@ -41,9 +41,9 @@ Forces of a solvable layout: the distribution minimising the drag part of
 Eq. 9 (``alpha * sum_b max drag on b's bottom + beta * sum D``) over the
 feasible set, i.e. the least-friction equilibrium; with ``canonical`` (the
 default, LP formulation) the canonical one among them, as for Eq. 9 (the
-term ``Params.ridge / (2 W) |x|^2`` added, solved by Clarabel once HiGHS
-has found the layout solvable; see ``exact.py``), so that a stable layout
-gets the same scores from eb as from Eq. 9.
+least-norm optimum, :func:`~stablelego_jax.solvers.exact.least_norm_optimum`,
+solved by Clarabel once HiGHS has found the layout solvable and its optimal
+cost), so that a stable layout gets the same scores from eb as from Eq. 9.
 """
 from __future__ import annotations
 
@@ -53,7 +53,7 @@ import numpy as np
 
 from ..model import KNOB, NORMAL, SIDE, ForceModel, normal_groups
 from ..score import largest_drag
-from .exact import EXACT_METHODS, equilibrium_matrix, ridge_weights, solve_qp
+from .exact import EXACT_METHODS, equilibrium_matrix, least_norm_optimum
 
 # scipy.sparse and scipy.optimize are imported where they are used (see exact.py)
 
@@ -180,9 +180,9 @@ def _solve_lp(model: ForceModel, method: str, lp_method: str, scale: bool, time_
     x = None if res.x is None else res.x[:q]
     msg, fun = res.message, res.fun
     if canonical and res.status == 0 and p.ridge > 0:
-        z, st = solve_qp(c, A_eq, b, A_ub, b_ub, bounds, ridge_weights(model, q, len(c)))
+        z, st = least_norm_optimum(c, A_eq, b, A_ub, b_ub, bounds, q, cost=float(res.fun))
         if z is None:
-            msg = f"{msg} (the canonical distribution failed, Clarabel: {st}; an optimal LP vertex instead)"
+            msg = f"{msg} (the canonical distribution failed: {st}; an optimal LP vertex instead)"
         else:
             x, fun, msg = z[:q], float(c @ z), f"{msg}; canonical distribution: Clarabel {st}"
     return res.status, msg, x, fun, (kind, col, slot, owner)
