@@ -72,9 +72,10 @@ EXACT_METHODS = ("highs", "highs-ds", "highs-ipm")
 
 
 def solve_exact(model: ForceModel, method: str = "highs", scale: bool = True, canonical: bool = True) -> ExactResult:
-    """Solve Eq. 9 exactly: the canonical distribution (:func:`least_norm`,
+    """Solve Eq. 9 exactly: the canonical distribution (:func:`least_norm`:
+    HiGHS' interior point for the optimal cost, whatever ``method``, then
     Clarabel) unless ``canonical`` is False or ``model.params.ridge`` is 0,
-    else (and when Clarabel fails: ``status`` says so) the LP with HiGHS
+    else (and when a stage of it fails: ``status`` says so) the LP with HiGHS
     ``method`` ("highs": HiGHS chooses, in practice dual simplex;
     "highs-ds"; "highs-ipm": interior point with crossover, much faster on
     layouts of hundreds of bricks), an optimal vertex: on a degenerate LP
