@@ -92,8 +92,8 @@ def run_one(path: str, vertex: bool = True) -> dict:
     t = time.perf_counter()
     v = solve_exact(model, method="highs" if vertex else "highs-ipm", canonical=False)
     t_lp = time.perf_counter() - t
-    vx = make_analysis(lay, model, v.f, "exact", v.success, t)
     if vertex:
+        vx = make_analysis(lay, model, v.f, "exact", v.success, t)
         v2 = solve_exact(model, method="highs-ipm", canonical=False)
         vx2 = make_analysis(lay, model, v2.f, "exact", v2.success, t)
     t = time.perf_counter()

@@ -115,7 +115,7 @@ def least_norm(model: ForceModel, scale: bool = True):
     """The canonical distribution of ``model``: the least-norm optimum of
     Eq. 9 (:func:`least_norm_optimum` over the variables of
     :func:`lp_arrays`). Returns ``(f, status, cost)``: f (m,) N or None when
-    Clarabel did not solve it, cost its Eq. 9 value (N-based units)."""
+    a stage failed, cost its Eq. 9 value (N-based units)."""
     c, A_eq, b_eq, A_ub, b_ub, bounds = lp_arrays(model, scale)
     x, status = least_norm_optimum(c, A_eq, b_eq, A_ub, b_ub, bounds, model.m)
     if x is None:
@@ -140,9 +140,7 @@ def least_norm_optimum(c, A_eq, b_eq, A_ub, b_ub, bounds, k: int, cost: float | 
     N = len(c)
     first = ""
     if cost is None:
-        from scipy.optimize import linprog
-
-        res = linprog(c, A_ub=A_ub, b_ub=b_ub, A_eq=A_eq, b_eq=b_eq, bounds=bounds, method="highs-ipm")
+        res = _linprog((c, A_eq, b_eq, A_ub, b_ub, bounds), "highs-ipm")
         if res.status != 0:
             return None, f"optimal cost: {res.message}"
         cost, first = float(res.fun), "optimal cost HiGHS, "
@@ -236,7 +234,12 @@ def lp_arrays(model: ForceModel, scale: bool = True):
 
 
 def _solve_lp(model: ForceModel, method: str, scale: bool):
+    return _linprog(lp_arrays(model, scale), method)
+
+
+def _linprog(arrays, method: str):
+    """HiGHS (``scipy.optimize.linprog``, ``method``) on :func:`lp_arrays`-style arrays."""
     from scipy.optimize import linprog
 
-    c, A_eq, b_eq, A_ub, b_ub, bounds = lp_arrays(model, scale)
+    c, A_eq, b_eq, A_ub, b_ub, bounds = arrays
     return linprog(c, A_ub=A_ub, b_ub=b_ub, A_eq=A_eq, b_eq=b_eq, bounds=bounds, method=method)
