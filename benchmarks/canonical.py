@@ -38,7 +38,7 @@ sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
 import numpy as np  # noqa: E402
 
 from stablelego_jax.analysis import analyze_layout, make_analysis  # noqa: E402
-from stablelego_jax.batch import read_results  # noqa: E402
+from stablelego_jax.batch import find_layouts, read_results  # noqa: E402
 from stablelego_jax.formats.reader import load_layout  # noqa: E402
 from stablelego_jax.model import compile_layout  # noqa: E402
 from stablelego_jax.solvers.exact import solve_exact  # noqa: E402
@@ -58,13 +58,6 @@ def default_inputs() -> list[str]:
                 + glob.glob(os.path.join(ROOT, "examples", "brickgpt", "*.txt"))
                 + glob.glob(os.path.join(ROOT, "examples", "extensions", "*.json")))
     return sorted(glob.glob(os.path.join(shard, "*.json"))) + ex
-
-
-def expand(inputs: list[str]) -> list[str]:
-    out = []
-    for p in inputs:
-        out += sorted(glob.glob(os.path.join(p, "*"))) if os.path.isdir(p) else [p]
-    return out
 
 
 def scores_of(a, keys) -> np.ndarray:
@@ -160,18 +153,18 @@ def main() -> None:
     ap.add_argument("--no-vertex", action="store_true", help="leave out HiGHS' optimal vertices")
     ap.add_argument("--part", default="1/1", help="K/N: every N-th layout from the K-th")
     args = ap.parse_args()
-    paths = expand(args.inputs) if args.inputs else default_inputs()
+    paths = find_layouts(args.inputs) if args.inputs else default_inputs()
     paths.sort(key=os.path.getsize)  # small layouts first: an interrupted run has covered most layouts
     if args.limit:
         paths = paths[: args.limit]
-    k, n_parts = (int(v) for v in args.part.split("/"))
-    mine = set(paths[k - 1::n_parts])
+    part, n_parts = (int(v) for v in args.part.split("/"))
+    paths = paths[part - 1::n_parts]
     done = {k: r for k, r in read_results(args.out, key="file").items() if r.get("settings") == SETTINGS}
     t0 = time.time()
     with open(args.out, "a") as fh:
         for i, p in enumerate(paths):
             key = os.path.relpath(p, ROOT)
-            if key in done or p not in mine:
+            if key in done:
                 continue
             r = run_one(p, vertex=not args.no_vertex)
             done[key] = r
@@ -179,7 +172,7 @@ def main() -> None:
             fh.flush()
             print(f"\r[{i + 1}/{len(paths)}] {time.time() - t0:.0f}s", end="", file=sys.stderr, flush=True)
     print(file=sys.stderr)
-    rows = [done[os.path.relpath(p, ROOT)] for p in paths if os.path.relpath(p, ROOT) in done]
+    rows = [done[os.path.relpath(p, ROOT)] for p in paths]
     print(f"machine: {platform.machine()} {os.cpu_count()} cores, python {platform.python_version()}")
     print(summarise(rows))
 

@@ -27,6 +27,7 @@ import time
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
 
 from stablelego_jax.analysis import analyze_layout  # noqa: E402
+from stablelego_jax.batch import find_layouts  # noqa: E402
 from stablelego_jax.formats.reader import load_layout  # noqa: E402
 
 HERE = os.path.dirname(os.path.abspath(__file__))
@@ -41,9 +42,7 @@ def main() -> None:
     ap.add_argument("--json", required=True, help="output file")
     args = ap.parse_args()
     if args.inputs:
-        files = []
-        for p in args.inputs:
-            files += sorted(glob.glob(os.path.join(p, "*.json"))) if os.path.isdir(p) else [p]
+        files = find_layouts(args.inputs)
     else:
         shard = os.path.join(HERE, "results", "shard500")
         if not os.path.isdir(shard):
