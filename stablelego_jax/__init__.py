@@ -18,13 +18,22 @@ and ``import stablelego_jax`` stay fast and do not touch JAX)::
     render    render_heatmap
 
 JAX runs in float64 inside the library only (:mod:`stablelego_jax.runtime`):
-the caller's JAX configuration is never changed.
+the caller's JAX configuration is never changed, with one exception: on
+jaxlib 0.10 to 0.11.1, importing the package sets ``PJRT_NPROC=1`` (one
+thread in XLA's CPU intra-op pool) unless ``PJRT_NPROC`` or ``NPROC`` is set,
+because those versions' batched LAPACK kernels can deadlock a larger pool
+(:func:`stablelego_jax.blas.one_xla_pool_thread`).
 """
 from __future__ import annotations
 
 import importlib
 
+from .blas import one_xla_pool_thread
+
 __version__ = "0.2.0"
+
+# before JAX's CPU backend starts: see stablelego_jax.blas
+one_xla_pool_thread()
 
 #: public name -> module that defines it
 _EXPORTS = {

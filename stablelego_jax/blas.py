@@ -19,13 +19,65 @@ three times on this machine (0 CPU, the main thread waiting forever in
 XLA's Eigen thread pool on, once with it off, so the Eigen flag is not the
 cause); inline dispatch removes the waiting step. It is a mitigation, not a
 proven fix: the hang is rare and was not reproduced on demand.
+
+The hang itself (found in session 17, gdb on a hung ``analyze``): jaxlib
+0.10's batched LAPACK kernels (``lapack_dtrsm_ffi``, ``dpotrf``, ...) split a
+batch of more than 200000 matrix entries into chunks, queue every chunk on
+XLA's intra-op pool and block until they are done. When the thunk executor
+runs as many such kernels at once as the pool has threads (two on this 2-core
+box), every thread waits for chunks that no thread is left to run: a
+deadlock with no thread computing. It depends on the schedule, so it came
+and went with unrelated changes to the solver's graph.
+:func:`one_xla_pool_thread`, called when the package is imported, sizes that
+pool to one thread (``PJRT_NPROC=1``) on the affected jaxlib versions; with
+one thread the kernels run their batch inline. ``tests/test_blas.py`` keeps a
+reproducer that hangs without it.
 """
 from __future__ import annotations
 
 import contextlib
 import functools
 
-__all__ = ["one_blas_thread", "openblas_library", "inline_cpu_dispatch"]
+__all__ = ["one_blas_thread", "openblas_library", "inline_cpu_dispatch", "one_xla_pool_thread",
+           "LAPACK_POOL_DEADLOCK"]
+
+#: jaxlib versions (from, up to but not including) whose CPU LAPACK kernels
+#: block XLA's intra-op pool on their own batch chunks (jaxlib 0.10.2 seen
+#: here; 0.11.2's open-source build no longer has the parallel path)
+LAPACK_POOL_DEADLOCK = ((0, 10, 0), (0, 11, 2))
+
+
+def _version_tuple(text: str) -> tuple:
+    """(major, minor, patch) of a version string such as "0.10.2" or "0.11.0rc1"."""
+    import re
+
+    parts = [int(m) for m in re.findall(r"\d+", text)[:3]]
+    return tuple(parts + [0] * (3 - len(parts)))
+
+
+def one_xla_pool_thread(environ=None, jaxlib_version: str | None = None) -> bool:
+    """Size XLA's CPU intra-op pool to one thread (``PJRT_NPROC=1`` in
+    ``environ``, default ``os.environ``) when the installed jaxlib is one of
+    :data:`LAPACK_POOL_DEADLOCK`'s and neither ``PJRT_NPROC`` nor ``NPROC`` is
+    set already (a caller's own choice is kept). Takes effect only if JAX's
+    CPU backend has not started yet. Returns whether it set the variable."""
+    import os
+
+    env = os.environ if environ is None else environ
+    if "PJRT_NPROC" in env or "NPROC" in env:
+        return False
+    if jaxlib_version is None:
+        try:
+            from importlib.metadata import PackageNotFoundError, version
+
+            jaxlib_version = version("jaxlib")
+        except (ImportError, PackageNotFoundError):
+            return False
+    lo, hi = LAPACK_POOL_DEADLOCK
+    if not lo <= _version_tuple(jaxlib_version) < hi:
+        return False
+    env["PJRT_NPROC"] = "1"
+    return True
 
 
 def inline_cpu_dispatch() -> None:

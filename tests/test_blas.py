@@ -23,3 +23,65 @@ def test_restored_after_an_error():
         with one_blas_thread():
             raise RuntimeError("inside")
     assert lib.scipy_openblas_get_num_threads() == before
+
+
+# --- XLA's CPU pool and jaxlib 0.10's batched LAPACK kernels -----------------
+
+import os  # noqa: E402
+import subprocess  # noqa: E402
+import sys  # noqa: E402
+
+from stablelego_jax.blas import LAPACK_POOL_DEADLOCK, one_xla_pool_thread  # noqa: E402
+
+ROOT = os.path.join(os.path.dirname(__file__), "..")
+
+#: four independent batched triangular solves of 8 x 160 x 160 (more than
+#: 200000 entries each, so jaxlib 0.10 splits each batch over XLA's pool) in
+#: one jitted function, 100 times. On jaxlib 0.10.2 with a 2-thread pool this
+#: hung on its first calls in every try on the 2-core box.
+REPRODUCER = """
+import sys
+if sys.argv[1] == "package":
+    import stablelego_jax  # noqa: F401  (the guard runs on import)
+import jax, jax.numpy as jnp
+from jax.scipy.linalg import solve_triangular
+jax.config.update("jax_enable_x64", True)
+B, n = 8, 160
+keys = jax.random.split(jax.random.key(0), 4)
+A = [jax.random.normal(k, (B, n, n)) for k in keys]
+L = [jnp.linalg.cholesky(a @ a.transpose(0, 2, 1) + n * jnp.eye(n)) for a in A]
+f = jax.jit(lambda L, x: sum(solve_triangular(Li, x * (i + 1), lower=True).sum() for i, Li in enumerate(L)))
+x = jnp.ones((B, n, n))
+for i in range(100):
+    float(f(L, x + i))
+print("done")
+"""
+
+
+def test_the_pool_guard_sets_one_thread_on_affected_jaxlib_only():
+    env = {}
+    assert one_xla_pool_thread(env, "0.10.2") and env == {"PJRT_NPROC": "1"}
+    for version in ("0.9.2", "0.11.2", "0.12.0"):
+        env = {}
+        assert not one_xla_pool_thread(env, version) and env == {}
+    assert LAPACK_POOL_DEADLOCK[0] <= (0, 11, 1) < LAPACK_POOL_DEADLOCK[1]
+
+
+def test_the_pool_guard_keeps_a_callers_own_setting():
+    for var in ("PJRT_NPROC", "NPROC"):
+        env = {var: "4"}
+        assert not one_xla_pool_thread(env, "0.10.2") and env == {var: "4"}
+
+
+def test_batched_lapack_calls_side_by_side_finish_after_importing_the_package():
+    """The reproducer finishes when the package was imported first (its
+    guard sizes the pool); a hang here is the deadlock of stablelego_jax.blas."""
+    env = {k: v for k, v in os.environ.items() if k not in ("PJRT_NPROC", "NPROC")}
+    env["PYTHONPATH"] = ROOT + os.pathsep + env.get("PYTHONPATH", "")
+    try:
+        out = subprocess.run([sys.executable, "-c", REPRODUCER, "package"], env=env, cwd=ROOT,
+                             capture_output=True, text=True, timeout=240)
+    except subprocess.TimeoutExpired:
+        pytest.fail("batched LAPACK calls deadlocked XLA's CPU pool (no answer in 240 s)")
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert out.stdout.strip() == "done"

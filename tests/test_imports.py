@@ -158,7 +158,10 @@ def test_tests_and_benchmarks_use_the_public_names(folder):
 
 
 def test_the_facade_imports_nothing_and_nothing_imports_it():
-    assert not [t for t, _, _ in _imports(PKG)], "stablelego_jax/__init__.py must stay lazy"
+    # one exception: blas (standard library only), whose guard must run
+    # before JAX's CPU backend starts (see stablelego_jax.blas.one_xla_pool_thread)
+    heavy = [t for t, _, _ in _imports(PKG) if t != f"{PKG}.blas"]
+    assert not heavy, "stablelego_jax/__init__.py must stay lazy"
     bad = [f"{m}:{line}" for m in MODULES for t, name, line in _imports(m) if t == PKG and m != PKG]
     assert not bad, "modules import the package facade: " + ", ".join(bad)
 
