@@ -157,3 +157,21 @@ def test_compiled_keeps_float64_inputs_float64(monkeypatch):
     out = np.asarray(exe(np.zeros(2))[0])
     assert out.dtype == np.float64 and out[0] == 1e-12  # float32 would give 9.9999998e-13
     assert jnp.zeros(1).dtype == jnp.float32
+
+
+def test_each_compile_hands_freed_memory_back(monkeypatch):
+    """After a compile, the heap memory that compiling and evicting freed
+    goes back to the system (glibc's malloc_trim), so a run that keeps
+    compiling new shapes does not keep growing."""
+    monkeypatch.setenv("STABLELEGO_CACHE", "0")
+    if not C.release_memory():
+        pytest.skip("no glibc malloc_trim on this system")
+    C.clear()
+    try:
+        before = C.STATS.released
+        C.compiled("quadruple", lambda x: (x * 4.0,), None, (np.zeros(6),))
+        assert C.STATS.released == before + 1
+        C.compiled("quadruple", lambda x: (x * 4.0,), None, (np.zeros(6),))  # held: no compile, no trim
+        assert C.STATS.released == before + 1
+    finally:
+        C.clear()

