@@ -6,13 +6,16 @@ Usage:
   python benchmarks/cores.py [--inputs benchmarks/results/small500] [--configs a,b,...] [--runs 2]
 
 Configurations (``--configs``):
-  jax-eigen      JAX, one device, XLA's Eigen thread pool on (JAX's default)
-  jax-1dev       JAX, one device, Eigen kernels on the calling thread
-  jax-2dev       JAX, 2 host devices (one per core), each its share of a batch
-  jax-2proc      JAX, 2 processes at once (``--shard 0/2`` and ``1/2``), one device each
+  jax-1proc      JAX, one process, one device (``--jobs 1``)
+  jax-pool       JAX, ``--jobs 2``: a pool of 2 worker processes, one device each (the default on 2 cores)
+  jax-2dev       JAX, one process, 2 host devices, each its share of a batch (``--jobs 1``)
+  jax-2proc      JAX, 2 processes at once (``--shard 0/2`` and ``1/2``, ``--jobs 1`` each)
   exact-1        HiGHS, one process
   exact-2        HiGHS, ``--jobs 2`` (a pool of 2 worker processes)
 
+Every JAX process has one XLA pool thread (``PJRT_NPROC=1``, set by the
+package on jaxlib 0.10: ``stablelego_jax.blas``); the flags of session 8's
+configurations (XLA's Eigen pool on or off) no longer change that.
 Each run is the real command line in a subprocess (``python -m
 stablelego_jax.cli.main score ...``) with its own cache folder
 (``STABLELEGO_CACHE_DIR``), so run 1 compiles everything and run 2 reads
@@ -39,11 +42,10 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 ROOT = os.path.dirname(HERE)
 
 CONFIGS = {
-    "jax-eigen": dict(solver="jax", procs=1, xla="--xla_cpu_multi_thread_eigen=true", devices="1"),
-    "jax-1dev": dict(solver="jax", procs=1, xla="--xla_cpu_multi_thread_eigen=false", devices="1"),
-    "jax-2dev": dict(solver="jax", procs=1,
-                     xla="--xla_cpu_multi_thread_eigen=false --xla_force_host_platform_device_count=2", devices="2"),
-    "jax-2proc": dict(solver="jax", procs=2, xla="--xla_cpu_multi_thread_eigen=false", devices="1"),
+    "jax-1proc": dict(solver="jax", procs=1, jobs=1, devices="1"),
+    "jax-pool": dict(solver="jax", procs=1, jobs=2, devices="1"),
+    "jax-2dev": dict(solver="jax", procs=1, jobs=1, xla="--xla_force_host_platform_device_count=2", devices="2"),
+    "jax-2proc": dict(solver="jax", procs=2, jobs=1, devices="1"),
     "exact-1": dict(solver="exact", procs=1, jobs=1),
     "exact-2": dict(solver="exact", procs=1, jobs=2),
 }
@@ -65,8 +67,7 @@ def run_config(name: str, inputs: list, work: str, cache: str, run: int) -> dict
                "--solver", cfg["solver"]]
         if cfg["solver"] == "jax":
             cmd += ["--devices", cfg["devices"]]
-        else:
-            cmd += ["--jobs", str(cfg["jobs"])]
+        cmd += ["--jobs", str(cfg["jobs"])]
         if cfg["procs"] > 1:
             cmd += ["--shard", f"{k}/{cfg['procs']}"]
         procs.append(subprocess.Popen(cmd, env=env, cwd=ROOT, stderr=subprocess.PIPE, text=True))
@@ -83,6 +84,7 @@ def run_config(name: str, inputs: list, work: str, cache: str, run: int) -> dict
         rec["compile_s"] += float(m.group(2))
         rec["shapes"] += int(m.group(3))
         # ru_maxrss of a child: its own peak (KiB on Linux), not its children's
+        # (a pool's workers are not counted)
         rec["peak_rss_mb"] = max(rec["peak_rss_mb"], ru.ru_maxrss / 1024.0)
     rec["wall_s"] = time.perf_counter() - t0
     return rec

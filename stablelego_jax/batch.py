@@ -44,6 +44,7 @@ from .progress import Progress
 from .solvers import admm, ipm
 from .solvers.compiled import STATS, compiled
 from .solvers.problem import (
+    COMPILE_S,
     MIN_BRICKS,
     MIN_COLUMNS,
     MIN_SLOTS,
@@ -53,6 +54,7 @@ from .solvers.problem import (
     layer_plan,
     merge_plans,
     plan_problem,
+    plan_seconds,
     rung,
     solve_plan,
     stack_problems,
@@ -61,7 +63,7 @@ from .solvers.problem import (
 
 __all__ = ["find_layouts", "read_results", "ScoreStats", "iter_analyses", "analyze_many", "score_files",
            "batch_solver_fn", "batch_sizes", "plan_bytes", "parse_shard", "in_shard", "cpu_cores",
-           "RESULT_PREFIX"]
+           "RESULT_PREFIX", "SolveUnit", "solve_units", "assign_units", "POOL_MIN"]
 
 LAYOUT_EXTS = (".json", ".txt", ".ldr")
 # files that sit beside StableLego layouts but are not layouts
@@ -289,10 +291,13 @@ def iter_analyses(
     (:func:`~stablelego_jax.solvers.problem.solve_plan`), padded to the
     group's largest column count and solved ``batch`` at a time by one
     compiled, ``vmap``-ed solver per (bucket, batch size), split over
-    ``devices`` local devices; "exact": HiGHS one at a time (``method``:
-    "ours" or a baseline), spread over ``jobs`` worker processes when
-    ``jobs`` > 1 (:func:`cpu_cores` for every core) and there are at least
-    ``POOL_MIN`` of them. ``merge`` (JAX): a bucket with few layouts is
+    ``devices`` local devices (:func:`solve_units`); "exact": HiGHS one at
+    a time (``method``: "ours" or a baseline). With ``jobs`` > 1
+    (:func:`cpu_cores` for every core) and at least ``POOL_MIN`` layouts,
+    every solver spreads them over ``jobs`` spawned worker processes
+    (JAX on one device: each worker solves whole batches, a bucket's
+    batches kept on one worker unless splitting it pays for a second
+    compile, :func:`assign_units`). ``merge`` (JAX): a bucket with few layouts is
     solved in a larger bucket of the same call when that costs less than a
     compile (:func:`~stablelego_jax.solvers.problem.merge_plans`). ``first_cap`` (ADMM only): iteration cap of a
     first pass, after which only uncertified layouts are solved again with
@@ -332,6 +337,64 @@ def iter_analyses(
     if opts is None:
         opts = ipm.IPMOptions() if solver == "jax" else admm.SolverOptions()
     n_dev = _device_count(devices)
+    units = solve_units(loaded, solver, batch, n_dev, merge)
+    jobs = min(max(1, int(jobs)), len(units))
+    if jobs > 1 and n_dev == 1 and len(loaded) >= POOL_MIN:
+        yield from _jax_pool(units, jobs, solver, params, opts, first_cap, fallback, st)
+        return
+    for unit in units:
+        yield from _solve_unit(unit, solver, params, opts, n_dev, first_cap, fallback, st)
+
+
+@dataclasses.dataclass
+class SolveUnit:
+    """One batch-sized piece of a solver bucket: ``items`` ((i, layout,
+    ForceModel)) padded to ``key`` (:func:`~stablelego_jax.solvers.problem.solve_plan`),
+    ``m_pad`` columns and ``p_pad`` contact slots, solved ``bsz`` at a time.
+    The pieces of one bucket share these, so they share compiled solvers."""
+
+    key: tuple
+    m_pad: int
+    p_pad: int
+    bsz: int
+    items: list
+
+    def seconds(self) -> float:
+        """Rough solve time (s) of the interior point (:func:`~stablelego_jax.solvers.problem.plan_seconds`)."""
+        return len(self.items) * plan_seconds(self.key)
+
+
+def solve_units(loaded, solver: str, batch: int, n_dev: int, merge: bool = True) -> list:
+    """The :class:`SolveUnit` list of compiled layouts ``loaded`` ((i, layout,
+    ForceModel)): grouped by solver bucket (interior point: dense or layered
+    shape, small buckets merged into larger ones when that costs less than a
+    compile; ADMM: bricks bucket), each group padded to its largest column
+    and slot counts and cut into pieces of at most one batch."""
+    groups: dict = {}
+    for item in loaded:
+        key = solve_plan(item[2]) if solver == "jax" else ("dense", rung(item[2].n, MIN_BRICKS))
+        groups.setdefault(key, []).append(item)
+    if solver == "jax" and merge:
+        # small buckets join a larger one when that costs less than a compile
+        into = merge_plans({k: [(rung(it[2].n, MIN_BRICKS), *layer_plan(it[2])) for it in v]
+                            for k, v in groups.items()})
+        merged: dict = {}
+        for k, v in groups.items():
+            merged.setdefault(into[k], []).extend(v)
+        groups = merged
+    units = []
+    for key in sorted(groups):
+        items = groups[key]
+        m_pad = rung(max(it[2].m for it in items), MIN_COLUMNS)
+        p_pad = rung(max(it[2].group.shape[1] for it in items), MIN_SLOTS)
+        bsz = batch_sizes(plan_bytes(key, m_pad), batch, n_dev)
+        units += [SolveUnit(key, m_pad, p_pad, bsz, items[b0: b0 + bsz]) for b0 in range(0, len(items), bsz)]
+    return units
+
+
+def _solve_unit(unit: SolveUnit, solver: str, params: Params, opts, n_dev: int, first_cap: int,
+                fallback: bool, st: "ScoreStats") -> Iterator[list]:
+    """Solve one :class:`SolveUnit`; yields lists of (i, Analysis) (see :func:`iter_analyses`)."""
 
     def solve_batch(probs, bsz, o):
         """Solve one batch of problems with options ``o``; returns (solution, seconds)."""
@@ -349,69 +412,103 @@ def iter_analyses(
         st.solve_s += dt
         return sol, dt
 
-    # group by solver bucket (interior point: dense or layered shape; ADMM:
-    # bricks bucket); columns and contact slots are padded to the group's
-    # largest, so a run compiles one solver per bucket (and batch size)
-    groups: dict = {}
-    for item in loaded:
-        key = solve_plan(item[2]) if solver == "jax" else ("dense", rung(item[2].n, MIN_BRICKS))
-        groups.setdefault(key, []).append(item)
-    if solver == "jax" and merge:
-        # small buckets join a larger one when that costs less than a compile
-        into = merge_plans({k: [(rung(it[2].n, MIN_BRICKS), *layer_plan(it[2])) for it in v]
-                            for k, v in groups.items()})
-        merged: dict = {}
-        for k, v in groups.items():
-            merged.setdefault(into[k], []).extend(v)
-        groups = merged
-    for key in sorted(groups):
-        items = groups[key]
-        m_pad = rung(max(it[2].m for it in items), MIN_COLUMNS)
-        p_pad = rung(max(it[2].group.shape[1] for it in items), MIN_SLOTS)
-        prepared = []
-        for it in items:
-            if solver == "jax":
-                fm, prob = plan_problem(it[2], key, m_pad, p_pad)
-            else:
-                fm = it[2].pad(key[1], m_pad, p_pad)
-                prob = to_problem(fm)
-            prepared.append((it, fm, prob))
-        bsz = batch_sizes(plan_bytes(key, m_pad), batch, n_dev)
-        # ADMM: pass 1 with an iteration cap; only layouts it leaves uncertified
-        # are solved again (from scratch, full budget), so one slow layout does
-        # not hold a whole batch for its full iteration count
-        passes = [opts]
-        if solver == "admm" and 0 < first_cap < opts.max_iter:
-            passes = [dataclasses.replace(opts, max_iter=first_cap), opts]
-        pending, spent = prepared, {}
-        for k, o in enumerate(passes):
-            last = k == len(passes) - 1
-            retry = []
-            for b0 in range(0, len(pending), bsz):
-                sub = pending[b0: b0 + bsz]
-                sol, dt = solve_batch([pr for _, _, pr in sub], bsz, o)
-                done = []
-                for j, ((i, lay, model), fm, _) in enumerate(sub):
-                    t_prev, it_prev = spent.get(i, (0.0, 0))
-                    spent[i] = (t_prev + dt / len(sub), it_prev + int(sol.iters[j]))
-                    if not last and not bool(sol.converged[j]):
-                        retry.append(sub[j])
-                        continue
-                    a = make_analysis(lay, fm, np.asarray(sol.f[j]), solver, bool(sol.converged[j]),
-                                      time.perf_counter(), iters=spent[i][1], gap=float(sol.gap[j]),
-                                      objective=float(sol.objective[j]))
-                    a.time_s = spent[i][0]  # amortised share of its batch(es)
-                    if fallback and not a.converged:
-                        t1 = time.perf_counter()
-                        with one_blas_thread():
-                            a = resolve_unconverged(a, o, params)
-                        st.solve_s += time.perf_counter() - t1
-                        st.retried += 1
-                    st.not_converged += not a.converged
-                    done.append((i, a))
-                if done:
-                    yield done
-            pending = retry
+    prepared = []
+    for it in unit.items:
+        if solver == "jax":
+            fm, prob = plan_problem(it[2], unit.key, unit.m_pad, unit.p_pad)
+        else:
+            fm = it[2].pad(unit.key[1], unit.m_pad, unit.p_pad)
+            prob = to_problem(fm)
+        prepared.append((it, fm, prob))
+    bsz = unit.bsz
+    # ADMM: pass 1 with an iteration cap; only layouts it leaves uncertified
+    # are solved again (from scratch, full budget), so one slow layout does
+    # not hold a whole batch for its full iteration count
+    passes = [opts]
+    if solver == "admm" and 0 < first_cap < opts.max_iter:
+        passes = [dataclasses.replace(opts, max_iter=first_cap), opts]
+    pending, spent = prepared, {}
+    for k, o in enumerate(passes):
+        last = k == len(passes) - 1
+        retry = []
+        for b0 in range(0, len(pending), bsz):
+            sub = pending[b0: b0 + bsz]
+            sol, dt = solve_batch([pr for _, _, pr in sub], bsz, o)
+            done = []
+            for j, ((i, lay, model), fm, _) in enumerate(sub):
+                t_prev, it_prev = spent.get(i, (0.0, 0))
+                spent[i] = (t_prev + dt / len(sub), it_prev + int(sol.iters[j]))
+                if not last and not bool(sol.converged[j]):
+                    retry.append(sub[j])
+                    continue
+                a = make_analysis(lay, fm, np.asarray(sol.f[j]), solver, bool(sol.converged[j]),
+                                  time.perf_counter(), iters=spent[i][1], gap=float(sol.gap[j]),
+                                  objective=float(sol.objective[j]))
+                a.time_s = spent[i][0]  # amortised share of its batch(es)
+                if fallback and not a.converged:
+                    t1 = time.perf_counter()
+                    with one_blas_thread():
+                        a = resolve_unconverged(a, o, params)
+                    st.solve_s += time.perf_counter() - t1
+                    st.retried += 1
+                st.not_converged += not a.converged
+                done.append((i, a))
+            if done:
+                yield done
+        pending = retry
+
+
+def _unit_results(unit: SolveUnit, solver, params, opts, first_cap, fallback) -> tuple:
+    """In a worker process: ([(i, Analysis)] of ``unit`` on one device, the
+    worker's :class:`ScoreStats` of it)."""
+    st = ScoreStats()
+    with one_blas_thread():
+        out = [x for part in _solve_unit(unit, solver, params, opts, 1, first_cap, fallback, st) for x in part]
+    return out, st
+
+
+def assign_units(units: Sequence[SolveUnit], jobs: int, compile_s: float = COMPILE_S) -> list:
+    """Worker index of each unit: longest first, each to the worker that
+    would finish it soonest, a worker that has not compiled the unit's
+    bucket paying ``compile_s`` for it (so a bucket's pieces stay on one
+    worker unless splitting it pays)."""
+    load = [0.0] * jobs
+    shapes: list = [set() for _ in range(jobs)]
+    out = [0] * len(units)
+    for u in sorted(range(len(units)), key=lambda k: -units[k].seconds()):
+        key = (units[u].key, units[u].m_pad, units[u].p_pad)
+        cost = [load[w] + units[u].seconds() + (0.0 if key in shapes[w] else compile_s) for w in range(jobs)]
+        w = min(range(jobs), key=cost.__getitem__)
+        load[w] = cost[w]
+        shapes[w].add(key)
+        out[u] = w
+    return out
+
+
+def _jax_pool(units, jobs, solver, params, opts, first_cap, fallback, st) -> Iterator[list]:
+    """The units over ``jobs`` spawned worker processes, one device (and one
+    XLA pool thread) each; every worker solves the units
+    :func:`assign_units` gives it, in order, so it compiles each of its
+    shapes once. Yields each unit's results as it finishes."""
+    where = assign_units(units, jobs)
+    ctx = multiprocessing.get_context("spawn")
+    pools = [concurrent.futures.ProcessPoolExecutor(1, mp_context=ctx, initializer=_ignore_sigint)
+             for _ in range(jobs)]
+    futs = []
+    try:
+        for u, w in zip(units, where):
+            futs.append(pools[w].submit(_unit_results, u, solver, params, opts, first_cap, fallback))
+        for fut in concurrent.futures.as_completed(futs):
+            out, wst = fut.result()
+            for f in ("solve_s", "compile_s", "compiles", "not_converged", "retried"):
+                setattr(st, f, getattr(st, f) + getattr(wst, f))
+            if out:
+                yield out
+    finally:
+        for fut in futs:
+            fut.cancel()
+        for pool in pools:
+            pool.shutdown(wait=True, cancel_futures=True)
 
 
 def _exact_items(items, method, exact_method, exact_scale) -> list:

@@ -244,3 +244,30 @@ def test_bad_shard_and_jobs_are_refused(tmp_path, capsys):
         assert main(["score", str(tmp_path), "--out", str(tmp_path / "r.jsonl"), *extra]) == 2
         assert "error: --" in capsys.readouterr().err
     assert not (tmp_path / "r.jsonl").exists()
+
+
+def test_assign_units_keeps_a_bucket_together_unless_splitting_pays():
+    from stablelego_jax.batch import SolveUnit, assign_units
+
+    small = [SolveUnit(("dense", 8), 64, 8, 64, [None] * 64) for _ in range(4)]  # ~0.07 s each
+    large = [SolveUnit(("layered", 16, 16), 512, 8, 16, [None] * 64) for _ in range(4)]  # ~11 s each
+    assert all(u.seconds() < 1.0 for u in small) and all(u.seconds() > 8.0 for u in large)
+    # the cheap bucket's pieces all go to the worker that is free (one compile);
+    # compiling it on the busy worker too would not finish sooner
+    assert assign_units(large[:1] + small, 2) == [0, 1, 1, 1, 1]
+    assert sorted(assign_units(large, 2)) == [0, 0, 1, 1]  # splitting the costly bucket pays
+    assert assign_units(small, 1) == [0, 0, 0, 0]
+
+
+def test_jax_pool_gives_the_same_answers():
+    """``jobs=2``: the same batches solved in two worker processes give the
+    same numbers as one process."""
+    from stablelego_jax.batch import POOL_MIN, analyze_many
+
+    lays = [stairs(k) for k in range(1, 17)] + [tower(k) for k in range(1, 17)]
+    assert len(lays) >= POOL_MIN
+    one = analyze_many(lays, "jax", jobs=1)
+    two = analyze_many(lays, "jax", jobs=2)
+    for a, b in zip(one, two):
+        assert (a.stable, a.weakest, a.converged, a.solver) == (b.stable, b.weakest, b.converged, b.solver)
+        assert a.scores == b.scores

@@ -113,7 +113,10 @@ def _analyses(args):
         good = [i for i, x in enumerate(loaded) if not isinstance(x, Exception)]
         try:
             with one_blas_thread():
-                res = analyze_many([loaded[i] for i in good], solver, method=args.method, jobs=cpu_cores())
+                # worker processes for the exact solver only: JAX workers would start
+                # (and load their executables) afresh for every chunk of CHUNK files
+                jobs = cpu_cores() if solver == "exact" else 1
+                res = analyze_many([loaded[i] for i in good], solver, method=args.method, jobs=jobs)
         except Exception:  # a failure inside the batched call: one file at a time, so only its file fails
             res = []
             for i in good:

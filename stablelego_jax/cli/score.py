@@ -30,7 +30,8 @@ def add_parser(sub, methods, exact_methods) -> None:
     sc.add_argument("--batch", type=int, default=64, help="most layouts per solver call (default 64)")
     sc.add_argument("--devices", default="all", help="'all' or the number of local devices to shard over")
     sc.add_argument("--jobs", type=int, default=None,
-                    help="worker processes of the exact solver and the baselines (default: every core)")
+                    help="worker processes, every solver, from 32 layouts up (default: every core); "
+                         "JAX workers run one device and one XLA thread each")
     sc.add_argument("--shard", default=None, metavar="K/N",
                     help="score only part K of N (0-based) of the inputs, chosen by a hash of each name: "
                          "N processes or hosts split a dataset with no coordination, each with its own --out")
