@@ -33,7 +33,7 @@ import jax
 import numpy as np
 
 from .analysis import analyze_exact, error_message, make_analysis, resolve_unconverged
-from .blas import one_blas_thread
+from .blas import lapack_pool_deadlock, one_blas_thread
 from .files import atomic_write, atomic_write_text, cut, read_text
 from .formats.dataset import score_grid
 from .formats import rows
@@ -260,9 +260,19 @@ def _write_score_grid(path: str, layout, scores) -> None:
 
 
 def _device_count(devices) -> int:
+    """Local devices to shard a batch over: ``devices`` ("all" or a count).
+    On CPU with a jaxlib whose LAPACK kernels deadlock several devices
+    (:func:`~stablelego_jax.blas.lapack_pool_deadlock`), "all" is one
+    device and a larger count is refused: worker processes (``jobs``) use
+    the other cores instead."""
     n_dev = jax.local_device_count() if devices in ("all", None) else int(devices)
     if not 1 <= n_dev <= jax.local_device_count():
         raise ValueError(f"--devices {devices}: this machine has {jax.local_device_count()} local device(s)")
+    if n_dev > 1 and jax.default_backend() == "cpu" and lapack_pool_deadlock():
+        if devices in ("all", None):
+            return 1
+        raise ValueError(f"--devices {devices}: several CPU devices deadlock this jaxlib's LAPACK kernels "
+                         "(see stablelego_jax.blas); use --jobs N (worker processes) for the cores")
     return n_dev
 
 

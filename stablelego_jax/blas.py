@@ -39,7 +39,7 @@ import contextlib
 import functools
 
 __all__ = ["one_blas_thread", "openblas_library", "inline_cpu_dispatch", "one_xla_pool_thread",
-           "LAPACK_POOL_DEADLOCK"]
+           "lapack_pool_deadlock", "LAPACK_POOL_DEADLOCK"]
 
 #: jaxlib versions (from, up to but not including) whose CPU LAPACK kernels
 #: block XLA's intra-op pool on their own batch chunks (jaxlib 0.10.2 seen
@@ -64,8 +64,19 @@ def one_xla_pool_thread(environ=None, jaxlib_version: str | None = None) -> bool
     import os
 
     env = os.environ if environ is None else environ
-    if "PJRT_NPROC" in env or "NPROC" in env:
+    if "PJRT_NPROC" in env or "NPROC" in env or not lapack_pool_deadlock(jaxlib_version):
         return False
+    env["PJRT_NPROC"] = "1"
+    return True
+
+
+def lapack_pool_deadlock(jaxlib_version: str | None = None) -> bool:
+    """Whether jaxlib ``jaxlib_version`` (default: the installed one) is one of
+    :data:`LAPACK_POOL_DEADLOCK`'s. On those, several CPU devices in one
+    process deadlock too: each device runs its LAPACK kernels on a pool
+    thread of its own (seen with 2 host devices: both threads in
+    ``lapack_dpotrf_ffi``, waiting), so the library runs one CPU device per
+    process and uses worker processes for the other cores."""
     if jaxlib_version is None:
         try:
             from importlib.metadata import PackageNotFoundError, version
@@ -74,10 +85,7 @@ def one_xla_pool_thread(environ=None, jaxlib_version: str | None = None) -> bool
         except (ImportError, PackageNotFoundError):
             return False
     lo, hi = LAPACK_POOL_DEADLOCK
-    if not lo <= _version_tuple(jaxlib_version) < hi:
-        return False
-    env["PJRT_NPROC"] = "1"
-    return True
+    return lo <= _version_tuple(jaxlib_version) < hi
 
 
 def inline_cpu_dispatch() -> None:

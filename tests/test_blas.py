@@ -31,7 +31,7 @@ import os  # noqa: E402
 import subprocess  # noqa: E402
 import sys  # noqa: E402
 
-from stablelego_jax.blas import LAPACK_POOL_DEADLOCK, one_xla_pool_thread  # noqa: E402
+from stablelego_jax.blas import LAPACK_POOL_DEADLOCK, lapack_pool_deadlock, one_xla_pool_thread  # noqa: E402
 
 ROOT = os.path.join(os.path.dirname(__file__), "..")
 
@@ -65,6 +65,11 @@ def test_the_pool_guard_sets_one_thread_on_affected_jaxlib_only():
         env = {}
         assert not one_xla_pool_thread(env, version) and env == {}
     assert LAPACK_POOL_DEADLOCK[0] <= (0, 11, 1) < LAPACK_POOL_DEADLOCK[1]
+
+
+def test_the_affected_versions():
+    assert lapack_pool_deadlock("0.10.2") and lapack_pool_deadlock("0.11.1")
+    assert not lapack_pool_deadlock("0.9.2") and not lapack_pool_deadlock("0.11.2")
 
 
 def test_the_pool_guard_keeps_a_callers_own_setting():
