@@ -79,7 +79,11 @@ def run_config(name: str, inputs: list, work: str, cache: str, run: int) -> dict
         err = p.stderr.read()
         m = SUMMARY.search(err)
         if p.returncode not in (0, 1) or not m:
-            raise SystemExit(f"{name}: exit {p.returncode}\n{err[-2000:]}")
+            # a configuration that fails (or is refused) is recorded, the others go on
+            for q in procs:
+                if q.poll() is None:
+                    q.kill()
+            return dict(config=name, run=run, failed=f"exit {p.returncode}: {err.strip()[-300:]}", outs=[])
         rec["solve_s"] += float(m.group(1))
         rec["compile_s"] += float(m.group(2))
         rec["shapes"] += int(m.group(3))
@@ -124,12 +128,15 @@ def main() -> None:
             for run in range(1, args.runs + 1):
                 rec = run_config(name, args.inputs, work, cache, run)
                 recs.append(rec)
+                if "failed" in rec:
+                    print(f"{name:10s} run {run}: FAILED {rec['failed']}", flush=True)
+                    break
                 print(f"{name:10s} run {run}: wall {rec['wall_s']:7.1f} s  solve {rec['solve_s']:7.1f} s  "
                       f"compile {rec['compile_s']:7.1f} s ({rec['shapes']} shapes)  peak {rec['peak_rss_mb']:.0f} MB",
                       flush=True)
         ref = next((results(r["outs"]) for r in recs if r["config"].startswith("exact")), None)
         for r in recs:
-            if ref is not None and not r["config"].startswith("exact"):
+            if ref is not None and not r["config"].startswith("exact") and "failed" not in r:
                 r.update(agreement(ref, results(r["outs"])))
                 print(f"{r['config']:10s} run {r['run']}: labels {r['labels_agree']}/{r['compared']}, "
                       f"highest score (1e-3) {r['highest_score_agree']}/{r['compared']}")
