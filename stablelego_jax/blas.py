@@ -17,8 +17,8 @@ backend starts, runs CPU computations inline on the calling thread
 three times on this machine (0 CPU, the main thread waiting forever in
 ``device_get`` for an asynchronously dispatched computation: twice with
 XLA's Eigen thread pool on, once with it off, so the Eigen flag is not the
-cause); inline dispatch removes the waiting step. It is a mitigation, not a
-proven fix: the hang is rare and was not reproduced on demand.
+cause); inline dispatch removes the waiting step. It did not remove the
+cause, which session 17 found (below); it is kept as it was.
 
 The hang itself (found in session 17, gdb on a hung ``analyze``): jaxlib
 0.10's batched LAPACK kernels (``lapack_dtrsm_ffi``, ``dpotrf``, ...) split a
@@ -39,7 +39,7 @@ import contextlib
 import functools
 
 __all__ = ["one_blas_thread", "openblas_library", "inline_cpu_dispatch", "one_xla_pool_thread",
-           "lapack_pool_deadlock", "LAPACK_POOL_DEADLOCK"]
+           "lapack_pool_deadlock", "installed_jaxlib_version", "LAPACK_POOL_DEADLOCK"]
 
 #: jaxlib versions (from, up to but not including) whose CPU LAPACK kernels
 #: block XLA's intra-op pool on their own batch chunks (jaxlib 0.10.2 seen
@@ -78,14 +78,36 @@ def lapack_pool_deadlock(jaxlib_version: str | None = None) -> bool:
     ``lapack_dpotrf_ffi``, waiting), so the library runs one CPU device per
     process and uses worker processes for the other cores."""
     if jaxlib_version is None:
-        try:
-            from importlib.metadata import PackageNotFoundError, version
-
-            jaxlib_version = version("jaxlib")
-        except (ImportError, PackageNotFoundError):
+        jaxlib_version = installed_jaxlib_version()
+        if jaxlib_version is None:
             return False
     lo, hi = LAPACK_POOL_DEADLOCK
     return lo <= _version_tuple(jaxlib_version) < hi
+
+
+@functools.lru_cache(maxsize=1)
+def installed_jaxlib_version() -> str | None:
+    """Version of the installed jaxlib (None when absent), without importing
+    it: read from the name of its ``jaxlib-VERSION.dist-info`` folder beside
+    the package, else from ``importlib.metadata`` (whose import alone costs
+    ~30 ms, too much for every command's start)."""
+    import glob
+    import importlib.util
+    import os
+
+    spec = importlib.util.find_spec("jaxlib")
+    if spec is None or not spec.origin:
+        return None
+    site = os.path.dirname(os.path.dirname(spec.origin))
+    found = glob.glob(os.path.join(site, "jaxlib-*.dist-info"))
+    if len(found) == 1:
+        return os.path.basename(found[0])[len("jaxlib-"): -len(".dist-info")]
+    try:
+        from importlib.metadata import PackageNotFoundError, version
+
+        return version("jaxlib")
+    except (ImportError, PackageNotFoundError):
+        return None
 
 
 def inline_cpu_dispatch() -> None:

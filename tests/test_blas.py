@@ -72,6 +72,14 @@ def test_the_affected_versions():
     assert not lapack_pool_deadlock("0.9.2") and not lapack_pool_deadlock("0.11.2")
 
 
+def test_the_installed_jaxlib_version_is_read_without_importing_it():
+    from importlib.metadata import version
+
+    from stablelego_jax.blas import installed_jaxlib_version
+
+    assert installed_jaxlib_version() == version("jaxlib")
+
+
 def test_the_pool_guard_keeps_a_callers_own_setting():
     for var in ("PJRT_NPROC", "NPROC"):
         env = {var: "4"}
