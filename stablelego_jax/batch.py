@@ -213,11 +213,17 @@ def batch_solver_fn(params: Params, opts, n_dev: int):
     interior point; :class:`~stablelego_jax.solvers.admm.SolverOptions`:
     ADMM), split over the first ``n_dev`` local devices with ``shard_map``
     (each device runs its own while-loop, so it stops as soon as its own
-    layouts have converged)."""
-    solve = ipm.solve if isinstance(opts, ipm.IPMOptions) else admm.solve
+    layouts have converged). ADMM: the last argument is each problem's
+    iteration cap, (batch,) int, so a capped first pass and the full pass
+    share one executable (``opts.max_iter`` is not used)."""
+    if isinstance(opts, ipm.IPMOptions):
 
-    def f(*arrays):
-        return tuple(jax.vmap(lambda *a: solve(Problem(*a), params, opts))(*arrays))
+        def f(*arrays):
+            return tuple(jax.vmap(lambda *a: ipm.solve(Problem(*a), params, opts))(*arrays))
+    else:
+
+        def f(*arrays):
+            return tuple(jax.vmap(lambda cap, *a: admm.solve(Problem(*a), params, opts, cap))(arrays[-1], *arrays[:-1]))
 
     if n_dev <= 1:
         return f
@@ -307,7 +313,7 @@ def iter_analyses(
     every solver spreads them over ``jobs`` spawned worker processes
     (JAX on one device: each worker solves whole batches, a bucket's
     batches kept on one worker unless splitting it pays for a second
-    compile, :func:`assign_units`). ``merge`` (JAX): a bucket with few layouts is
+    compile, :func:`assign_units`). ``merge``: a bucket with few layouts is
     solved in a larger bucket of the same call when that costs less than a
     compile (:func:`~stablelego_jax.solvers.problem.merge_plans`). ``first_cap`` (ADMM only): iteration cap of a
     first pass, after which only uncertified layouts are solved again with
@@ -377,17 +383,21 @@ class SolveUnit:
 def solve_units(loaded, solver: str, batch: int, n_dev: int, merge: bool = True) -> list:
     """The :class:`SolveUnit` list of compiled layouts ``loaded`` ((i, layout,
     ForceModel)): grouped by solver bucket (interior point: dense or layered
-    shape, small buckets merged into larger ones when that costs less than a
-    compile; ADMM: bricks bucket), each group padded to its largest column
-    and slot counts and cut into pieces of at most one batch."""
+    shape; ADMM: bricks bucket), small buckets merged into larger ones when
+    that costs less than a compile (``merge``; each solver's cost model:
+    :func:`~stablelego_jax.solvers.problem.plan_seconds`,
+    :func:`~stablelego_jax.solvers.admm.bucket_seconds`), each group padded
+    to its largest column and slot counts and cut into pieces of at most one
+    batch."""
     groups: dict = {}
     for item in loaded:
         key = solve_plan(item[2]) if solver == "jax" else ("dense", rung(item[2].n, MIN_BRICKS))
         groups.setdefault(key, []).append(item)
-    if solver == "jax" and merge:
+    if merge:
         # small buckets join a larger one when that costs less than a compile
         into = merge_plans({k: [(rung(it[2].n, MIN_BRICKS), *layer_plan(it[2])) for it in v]
-                            for k, v in groups.items()})
+                            for k, v in groups.items()},
+                           seconds=plan_seconds if solver == "jax" else admm.bucket_seconds)
         merged: dict = {}
         for k, v in groups.items():
             merged.setdefault(into[k], []).extend(v)
@@ -411,9 +421,14 @@ def _solve_unit(unit: SolveUnit, solver: str, params: Params, opts, n_dev: int, 
         size = batch_rung(len(probs), n_dev, bsz)
         probs = probs + [probs[-1]] * (size - len(probs))
         arrays = tuple(a for a in stack_problems(probs) if a is not None)
+        if isinstance(o, ipm.IPMOptions):
+            name, o_key = "batch-ipm", o
+        else:  # the cap is an argument: both ADMM passes share one executable
+            name, o_key = "batch-admm", dataclasses.replace(o, max_iter=0)
+            arrays += (np.full(size, o.max_iter, np.int32),)
         n0, t0c = STATS.compiles, STATS.compile_s
-        exe = compiled("batch-ipm" if isinstance(o, ipm.IPMOptions) else "batch-admm",
-                       batch_solver_fn(params, o, n_dev), (params, o, n_dev), arrays, export=n_dev == 1)
+        exe = compiled(name, batch_solver_fn(params, o_key, n_dev), (params, o_key, n_dev), arrays,
+                       export=n_dev == 1)
         st.compiles += STATS.compiles - n0
         st.compile_s += STATS.compile_s - t0c
         t1 = time.perf_counter()

@@ -11,6 +11,7 @@ from conftest import EXAMPLES
 
 from stablelego_jax.generate.objects import analyze_and_write
 from stablelego_jax.generate.procedural import stairs, tower
+from stablelego_jax import load_layout
 from stablelego_jax.analysis import analyze
 from stablelego_jax.batch import batch_sizes, find_layouts, plan_bytes, read_results, score_files
 from stablelego_jax.cli import main
@@ -178,6 +179,24 @@ def test_capped_first_pass_then_retry_of_uncertified(tmp_path):
     for p in paths:
         ex = analyze(p, solver="exact")
         assert recs[p]["stable"] == ex.stable and recs[p]["weakest"] == ex.weakest
+
+
+def test_admm_passes_share_one_executable():
+    """The capped first pass and the retry of what it left uncertified run
+    the same compiled ADMM solver when their batches are equally padded
+    (the cap is an argument, not part of the compiled shape)."""
+    from stablelego_jax.batch import analyze_many
+    from stablelego_jax.solvers import compiled
+
+    paths = [os.path.join(REF, n) for n in ("stick_light.json", "stick_heavy.json")]
+    compiled.clear()
+    n0 = compiled.STATS.compiles
+    res = analyze_many([load_layout(p) for p in paths], "admm", first_cap=50)
+    assert compiled.STATS.compiles - n0 == 1
+    for p, a in zip(paths, res):
+        assert a.converged and a.iters > 50  # both went through the second pass
+        ex = analyze(p, solver="exact")
+        assert a.stable == ex.stable and a.weakest == ex.weakest
 
 
 def test_analyze_many_in_input_order_with_errors_in_place():

@@ -78,3 +78,19 @@ def test_float32_option_runs():
     path = os.path.join(EXAMPLES, "stablelego", "external_weight_good.json")
     a = analyze(path, solver="jax", opts=SolverOptions(dtype="float32", max_iter=2000))
     assert set(a.scores) == {"1", "2", "3", "4"}
+
+
+def test_traced_iteration_cap_matches_static_cap():
+    """The cap as an argument (one executable for every cap) stops where the
+    same cap in the options does."""
+    m = compile_layout(load_layout(os.path.join(EXAMPLES, "stablelego", "stick_heavy.json")))
+    prob = to_problem(m)
+    opts = SolverOptions()
+    run = jax.jit(lambda p, cap: solve(p, m.params, opts, cap))
+    for cap in (100, 20000):
+        a = run(prob, np.int32(cap))
+        b = solve(prob, m.params, SolverOptions(max_iter=cap))
+        assert int(a.iters) == int(b.iters) <= cap
+        assert bool(a.converged) == bool(b.converged)
+        np.testing.assert_array_equal(np.asarray(a.f), np.asarray(b.f))
+    assert not bool(run(prob, np.int32(50)).converged)  # stick_heavy needs more than 50
