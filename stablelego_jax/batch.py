@@ -313,7 +313,7 @@ def iter_analyses(
     every solver spreads them over ``jobs`` spawned worker processes
     (JAX on one device: each worker solves whole batches, a bucket's
     batches kept on one worker unless splitting it pays for a second
-    compile, :func:`assign_units`). ``merge``: a bucket with few layouts is
+    compile, :func:`assign_units`). ``merge`` (JAX): a bucket with few layouts is
     solved in a larger bucket of the same call when that costs less than a
     compile (:func:`~stablelego_jax.solvers.problem.merge_plans`). ``first_cap`` (ADMM only): iteration cap of a
     first pass, after which only uncertified layouts are solved again with
@@ -383,21 +383,18 @@ class SolveUnit:
 def solve_units(loaded, solver: str, batch: int, n_dev: int, merge: bool = True) -> list:
     """The :class:`SolveUnit` list of compiled layouts ``loaded`` ((i, layout,
     ForceModel)): grouped by solver bucket (interior point: dense or layered
-    shape; ADMM: bricks bucket), small buckets merged into larger ones when
-    that costs less than a compile (``merge``; each solver's cost model:
-    :func:`~stablelego_jax.solvers.problem.plan_seconds`,
-    :func:`~stablelego_jax.solvers.admm.bucket_seconds`), each group padded
-    to its largest column and slot counts and cut into pieces of at most one
-    batch."""
+    shape, small buckets merged into larger ones when that costs less than a
+    compile; ADMM: bricks bucket), each group padded to its largest column
+    and slot counts and cut into pieces of at most one batch."""
     groups: dict = {}
     for item in loaded:
         key = solve_plan(item[2]) if solver == "jax" else ("dense", rung(item[2].n, MIN_BRICKS))
         groups.setdefault(key, []).append(item)
-    if merge:
-        # small buckets join a larger one when that costs less than a compile
+    if solver == "jax" and merge:
+        # small buckets join a larger one when that costs less than a compile (not ADMM: measured,
+        # merged buckets ran 1.9x longer, a batch iterating until its slowest layout converges)
         into = merge_plans({k: [(rung(it[2].n, MIN_BRICKS), *layer_plan(it[2])) for it in v]
-                            for k, v in groups.items()},
-                           seconds=plan_seconds if solver == "jax" else admm.bucket_seconds)
+                            for k, v in groups.items()})
         merged: dict = {}
         for k, v in groups.items():
             merged.setdefault(into[k], []).extend(v)

@@ -136,14 +136,3 @@ def test_layer_soft_places_bricks_layer_by_layer():
     key = soft_plan(tall.problem)
     assert key[0] == "layered" and plan_soft(tall.problem).layers.shape == key[1:]
 
-
-def test_merge_plans_uses_the_given_cost_model():
-    """A solver whose large buckets cost far more per layout (ADMM) moves
-    fewer buckets than the interior point's model would."""
-    from stablelego_jax.solvers.admm import bucket_seconds
-    from stablelego_jax.solvers.problem import merge_plans
-
-    sizes = {("dense", 16): [(16, 3, 6)] * 5, ("dense", 152): [(152, 20, 12)] * 10}
-    assert merge_plans(sizes, seconds=lambda k: 1e-3)[("dense", 16)] == ("dense", 152)  # free to pad
-    assert merge_plans(sizes, seconds=bucket_seconds)[("dense", 16)] == ("dense", 16)
-    assert bucket_seconds(("dense", 152)) > 10 * bucket_seconds(("dense", 40))

@@ -36,16 +36,7 @@ from ..runtime import x64
 from ..score import largest_drag
 from .problem import Problem, Solution, make_solution, operators
 
-__all__ = ["SolverOptions", "solve", "solve_batch", "bucket_seconds"]
-
-
-def bucket_seconds(key: tuple) -> float:
-    """Rough seconds one layout of dense bucket ``key`` = ("dense", n_pad)
-    takes in a batched ADMM solve on a CPU core: 10 ms plus 20 ns x (6 n)^3
-    (fitted to batches of 8 small and shard layouts, session 18: 8 / 24 /
-    56 / 96 / 152 bricks 0.02 / 0.19 / 0.55 / 1.5 / 19 s per layout, with
-    iteration counts that vary 10x within a bucket)."""
-    return 1e-2 + 2e-8 * (6 * key[1]) ** 3
+__all__ = ["SolverOptions", "solve", "solve_batch"]
 
 
 @dataclasses.dataclass(frozen=True)

@@ -7,7 +7,7 @@ torque rows in T x stud pitch (so force and torque rows have one size).
 from __future__ import annotations
 
 import dataclasses
-from typing import Callable, NamedTuple, Sequence
+from typing import NamedTuple, Sequence
 
 import jax.numpy as jnp
 import numpy as np
@@ -383,24 +383,23 @@ def _fits(key: tuple, size: tuple) -> bool:
     return n_b <= key[1] if key[0] == "dense" else (L <= key[1] and B <= key[2])
 
 
-def merge_plans(sizes: dict, compile_s: float = COMPILE_S, seconds: Callable = plan_seconds) -> dict:
+def merge_plans(sizes: dict, compile_s: float = COMPILE_S) -> dict:
     """Fewer compiled shapes for one run: ``sizes`` maps each bucket key
     (:func:`solve_plan`) to the (padded bricks, layers, slots per layer) of
     its layouts; returns {key: key to solve it in}. A bucket moves into a
     larger bucket of the same run (one its layouts fit in) when solving its
-    layouts there costs less extra time (``seconds(key)``: one layout's
-    solve in bucket ``key``, default :func:`plan_seconds`) than
+    layouts there costs less extra time (:func:`plan_seconds`) than
     ``compile_s``, one compile; the smallest buckets move first, each to the
     cheapest target. With ``compile_s`` = 0 nothing moves."""
     sizes = {k: list(v) for k, v in sizes.items()}
     target = {k: k for k in sizes}
     count = {k: len(v) for k, v in sizes.items()}
-    for k in sorted(sizes, key=lambda k: (count[k], seconds(k))):
+    for k in sorted(sizes, key=lambda k: (count[k], plan_seconds(k))):
         best, best_extra = None, compile_s
         for t in sizes:
             if t == k or target[t] != t or not all(_fits(t, sz) for sz in sizes[k]):
                 continue
-            extra = count[k] * (seconds(t) - seconds(k))
+            extra = count[k] * (plan_seconds(t) - plan_seconds(k))
             if extra < best_extra:
                 best, best_extra = t, extra
         if best is not None:
