@@ -9,7 +9,7 @@ compiles (traces, exports, compiles or loads a new shape) is summed apart
 from what the rest of the run adds (solving, scoring, output).
 
     python benchmarks/executable_growth.py [--solver jax|admm] [--limit K] [--n 500]
-        [--dir benchmarks/results/small500] [--json OUT]
+        [--dir benchmarks/results/small500] [--json OUT] [--keep-tracing-caches]
 
 ``--limit K``: hold at most K executables (default: the library's 32).
 Prints one row per compile (and every 100 files): files, mappings, RSS MB,
@@ -47,9 +47,13 @@ def main() -> None:
     ap.add_argument("--dir", default=os.path.join(HERE, "results", "small500"))
     ap.add_argument("--solver", default="jax", choices=["jax", "admm"])
     ap.add_argument("--json", help="write the rows and the RSS split here")
+    ap.add_argument("--keep-tracing-caches", action="store_true",
+                    help="do not empty JAX's tracing caches after each compile (as before 2026-11-24)")
     args = ap.parse_args()
     if args.limit:
         C.set_limit(args.limit)
+    if args.keep_tracing_caches:
+        C.drop_tracing_caches = lambda: False  # compiled() looks it up at each call
     files = sorted(glob.glob(os.path.join(args.dir, "*.json")))[: args.n]
     if not files:
         sys.exit(f"{args.dir}: no layouts (python benchmarks/make_shard.py --n 500 --recipe small --out {args.dir})")
@@ -75,7 +79,7 @@ def main() -> None:
             if k:
                 Lines.n += k
                 rows.append((Lines.n, C.mappings(), round(rss_mb(), 1), C.cache_size(), C.STATS.compiles,
-                             C.STATS.evicted))
+                             C.STATS.evicted, round(split["compile_mb"], 1)))
             return len(s)
 
     r_start, t0 = rss_mb(), time.perf_counter()
@@ -85,14 +89,15 @@ def main() -> None:
         except SystemExit:
             pass
     wall = time.perf_counter() - t0
-    print("files mappings rss_mb held compiles evicted")
+    print("files mappings rss_mb held compiles evicted compile_mb_so_far")
     last = None
     for r in rows:
         if last is None or r[4] != last[4] or r[0] % 100 == 0 or r is rows[-1]:
             print(*r)
         last = r
     total = rss_mb() - r_start
-    split.update(solver=args.solver, files=len(files), lines=Lines.n, wall_s=round(wall, 1),
+    split.update(solver=args.solver, keep_tracing_caches=args.keep_tracing_caches, files=len(files), lines=Lines.n,
+                 wall_s=round(wall, 1),
                  rss_start_mb=round(r_start, 1), rss_end_mb=round(rss_mb(), 1), total_mb=round(total, 1),
                  rest_mb=round(total - split["compile_mb"] - split["hit_mb"], 1),
                  compiles=C.STATS.compiles, evicted=C.STATS.evicted)

@@ -159,6 +159,28 @@ def test_compiled_keeps_float64_inputs_float64(monkeypatch):
     assert jnp.zeros(1).dtype == jnp.float32
 
 
+def test_each_compile_empties_jax_tracing_caches_and_answers_stay(monkeypatch):
+    """After each compile JAX's tracing caches are emptied (a first run that
+    traces many shapes would otherwise keep every jaxpr); executables compiled
+    before and after still answer, and eager operations still work."""
+    monkeypatch.setenv("STABLELEGO_CACHE", "0")
+    C.clear()
+    try:
+        before = C.STATS.dropped
+        a = C.compiled("triple", lambda x: (x * 3.0,), None, (np.zeros(5),))
+        if C.STATS.dropped == before:
+            pytest.skip("this JAX has no tracing caches to empty where we look")
+        b = C.compiled("triple", lambda x: (x * 3.0,), None, (np.zeros(7),))
+        assert C.STATS.dropped == before + 2
+        C.compiled("triple", lambda x: (x * 3.0,), None, (np.zeros(7),))  # held: nothing emptied
+        assert C.STATS.dropped == before + 2
+        np.testing.assert_array_equal(np.asarray(a(np.ones(5))[0]), np.full(5, 3.0))
+        np.testing.assert_array_equal(np.asarray(b(np.ones(7))[0]), np.full(7, 3.0))
+        assert float(jnp.arange(4.0).sum()) == 6.0
+    finally:
+        C.clear()
+
+
 def test_each_compile_hands_freed_memory_back(monkeypatch):
     """After a compile, the heap memory that compiling and evicting freed
     goes back to the system (glibc's malloc_trim), so a run that keeps

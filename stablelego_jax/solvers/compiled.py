@@ -18,11 +18,15 @@ the JAX version, the backend and a digest of the library's source code, so
 a changed solver never meets a stale entry.
 
 Compiles are counted (:data:`STATS`) so batch runs report compile time
-apart from solve time. After each compile the C allocator hands the memory
-that compiling and evicting freed back to the system (:func:`release_memory`):
-without it, a run that keeps compiling new shapes (ADMM over 448 small
-layouts: 68 compiles, 36 evictions) grew its resident memory by 430 MB
-after the cache was full, with it by 19 MB.
+apart from solve time. After each compile JAX's tracing and lowering caches
+are emptied (:func:`drop_tracing_caches`; the executables stay) and the C
+allocator hands the memory that compiling and evicting freed back to the
+system (:func:`release_memory`). Without the latter, a run that keeps
+compiling new shapes (ADMM over 448 small layouts: 68 compiles, 36
+evictions) grew its resident memory by 430 MB after the cache was full,
+with it by 19 MB when the shapes came from disk; without the former, a
+first run that traces every shape (ADMM, 500 small layouts) still grew
+124 MB over its second half, with it 37 MB (BENCHMARKS.md, "Robustness").
 """
 from __future__ import annotations
 
@@ -41,7 +45,7 @@ from ..files import atomic_write
 from ..runtime import cache_dir, float64, use_persistent_cache
 
 __all__ = ["CompileStats", "STATS", "compiled", "clear", "set_limit", "cache_size", "code_digest", "map_budget",
-           "mappings", "release_memory"]
+           "mappings", "release_memory", "drop_tracing_caches"]
 
 
 @dataclasses.dataclass
@@ -49,8 +53,9 @@ class CompileStats:
     """Counters of this process: executables compiled (``compiles``, wall
     ``compile_s`` including tracing and disk loads), of those loaded from
     the export cache (``loaded``), in-process hits (``hits``) and
-    executables dropped by the bound (``evicted``) and calls that handed freed
-    memory back to the system (``released``)."""
+    executables dropped by the bound (``evicted``), calls that handed freed
+    memory back to the system (``released``) and that emptied JAX's tracing
+    caches (``dropped``)."""
 
     compiles: int = 0
     compile_s: float = 0.0
@@ -58,6 +63,7 @@ class CompileStats:
     hits: int = 0
     evicted: int = 0
     released: int = 0
+    dropped: int = 0
 
 
 STATS = CompileStats()
@@ -114,6 +120,24 @@ def release_memory() -> bool:
         return False
     trim(0)
     STATS.released += 1
+    return True
+
+
+def drop_tracing_caches() -> bool:
+    """Empty JAX's tracing and lowering caches (its ``lu.cache``,
+    ``util.cache`` and weak-reference LRU caches: the jaxprs of every shape
+    traced, kept up to a few thousand entries each), leaving compiled code
+    and the C++ dispatch caches of eager operations alone, unlike
+    ``jax.clear_caches()``, which makes every eager operation compile again.
+    Our executables need none of it once compiled. JAX has no public call
+    for this part; False (nothing done) if its internals move."""
+    try:
+        from jax._src import util as jax_util
+
+        jax_util.clear_all_caches()
+    except (ImportError, AttributeError):
+        return False
+    STATS.dropped += 1
     return True
 
 
@@ -218,5 +242,6 @@ def compiled(name: str, fn: Callable, static: Hashable, args, export: bool = Tru
 
     _CACHE[key] = exe
     _evict()
+    drop_tracing_caches()
     release_memory()
     return exe
