@@ -264,11 +264,14 @@ def _system(prob: Problem, params: Params, opts: IPMOptions) -> dict:
         # inflates obj - nu'g on statically indeterminate layouts without an error
         # in the forces)
         comp = dot(G(z), tuple(l_ * a for l_, a in zip(lam, act)))
-        tol = opts.eps_gap_abs + opts.eps_gap_rel * jnp.abs(obj)
+
+        def gap_ok(eps_abs, eps_rel):
+            tol = eps_abs + eps_rel * jnp.abs(obj)
+            return (comp <= tol) & (obj - dual <= 100 * tol)
+
         feas = (pres <= opts.eps_feas) & (dres <= opts.eps_feas)
-        ok = feas & (comp <= tol) & (obj - dual <= 100 * tol)
-        tol = opts.polish_gap_abs + opts.polish_gap_rel * jnp.abs(obj)
-        fine = ok & (comp <= tol) & (obj - dual <= 100 * tol)
+        ok = feas & gap_ok(opts.eps_gap_abs, opts.eps_gap_rel)
+        fine = ok & gap_ok(opts.polish_gap_abs, opts.polish_gap_rel)
         return (ok, fine), pres, dres, obj, dual, rd, rp_res
 
     def start():
