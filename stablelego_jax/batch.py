@@ -254,6 +254,12 @@ class ScoreStats:
     def to_json(self) -> dict:
         return dataclasses.asdict(self)
 
+    def add_solver_counts(self, other: "ScoreStats") -> None:
+        """Add the counters a solver worker keeps (solve and compile time,
+        compiles, unconverged and retried layouts) of ``other`` to these."""
+        for f in ("solve_s", "compile_s", "compiles", "not_converged", "retried"):
+            setattr(self, f, getattr(self, f) + getattr(other, f))
+
 
 def _write_score_grid(path: str, layout, scores) -> None:
     """stability_score.npy beside a dataset object (grid shape of its vox.npy)."""
@@ -522,8 +528,7 @@ def _jax_pool(units, jobs, solver, params, opts, first_cap, fallback, st) -> Ite
             futs.append(pools[w].submit(_unit_results, u, solver, params, opts, first_cap, fallback))
         for fut in concurrent.futures.as_completed(futs):
             out, wst = fut.result()
-            for f in ("solve_s", "compile_s", "compiles", "not_converged", "retried"):
-                setattr(st, f, getattr(st, f) + getattr(wst, f))
+            st.add_solver_counts(wst)
             if out:
                 yield out
     finally:

@@ -13,7 +13,7 @@ from stablelego_jax.generate.objects import analyze_and_write
 from stablelego_jax.generate.procedural import stairs, tower
 from stablelego_jax import load_layout
 from stablelego_jax.analysis import analyze
-from stablelego_jax.batch import batch_sizes, find_layouts, plan_bytes, read_results, score_files
+from stablelego_jax.batch import ScoreStats, batch_sizes, find_layouts, plan_bytes, read_results, score_files
 from stablelego_jax.cli import main
 
 REF = os.path.join(EXAMPLES, "stablelego")
@@ -299,3 +299,12 @@ def test_jax_pool_gives_the_same_answers():
     for a, b in zip(one, two):
         assert (a.stable, a.weakest, a.converged, a.solver) == (b.stable, b.weakest, b.converged, b.solver)
         assert a.scores == b.scores
+
+
+def test_worker_counts_add_up_and_parent_counts_stay():
+    """A worker's solver counters are added; the parent's file counts are its own."""
+    st = ScoreStats(total=5, scored=4, solve_s=1.0, compiles=2)
+    st.add_solver_counts(ScoreStats(total=99, scored=99, solve_s=0.5, compile_s=2.0, compiles=3,
+                                    not_converged=1, retried=1))
+    assert (st.total, st.scored) == (5, 4)
+    assert (st.solve_s, st.compile_s, st.compiles, st.not_converged, st.retried) == (1.5, 2.0, 5, 1, 1)
