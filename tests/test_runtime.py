@@ -160,9 +160,10 @@ def test_compiled_keeps_float64_inputs_float64(monkeypatch):
 
 
 def test_each_compile_empties_jax_tracing_caches_and_answers_stay(monkeypatch):
-    """After each compile JAX's tracing caches are emptied (a first run that
-    traces many shapes would otherwise keep every jaxpr); executables compiled
-    before and after still answer, and eager operations still work."""
+    """After each compile that traced the function JAX's tracing caches are
+    emptied (a first run that traces many shapes would otherwise keep every
+    jaxpr); executables compiled before and after still answer, and eager
+    operations still work."""
     monkeypatch.setenv("STABLELEGO_CACHE", "0")
     C.clear()
     try:
@@ -195,5 +196,25 @@ def test_each_compile_hands_freed_memory_back(monkeypatch):
         assert C.STATS.released == before + 1
         C.compiled("quadruple", lambda x: (x * 4.0,), None, (np.zeros(6),))  # held: no compile, no trim
         assert C.STATS.released == before + 1
+    finally:
+        C.clear()
+
+
+def test_a_solver_read_from_disk_leaves_jax_tracing_caches_alone(monkeypatch, tmp_path):
+    """Only a compile that traced empties JAX's caches: a warm run, which
+    reads every solver from disk, keeps them (emptying cost it seconds)."""
+    monkeypatch.setenv("STABLELEGO_CACHE_DIR", str(tmp_path))
+    monkeypatch.delenv("STABLELEGO_CACHE", raising=False)
+    C.clear()
+    try:
+        before = C.STATS.dropped
+        C.compiled("quintuple", lambda x: (x * 5.0,), None, (np.zeros(3),))
+        if C.STATS.dropped == before:
+            pytest.skip("this JAX has no tracing caches to empty where we look")
+        C.clear()  # a new process, as far as the in-memory cache knows
+        loaded = C.STATS.loaded
+        exe = C.compiled("quintuple", lambda x: (x * 5.0,), None, (np.zeros(3),))
+        assert C.STATS.loaded == loaded + 1 and C.STATS.dropped == before + 1
+        np.testing.assert_array_equal(np.asarray(exe(np.ones(3))[0]), np.full(3, 5.0))
     finally:
         C.clear()

@@ -18,8 +18,9 @@ the JAX version, the backend and a digest of the library's source code, so
 a changed solver never meets a stale entry.
 
 Compiles are counted (:data:`STATS`) so batch runs report compile time
-apart from solve time. After each compile JAX's tracing and lowering caches
-are emptied (:func:`drop_tracing_caches`; the executables stay) and the C
+apart from solve time. After each compile that traced the function (not
+read from disk) JAX's tracing and lowering caches are emptied
+(:func:`drop_tracing_caches`; the executables stay) and after every compile the C
 allocator hands the memory that compiling and evicting freed back to the
 system (:func:`release_memory`). Without the latter, a run that keeps
 compiling new shapes (ADMM over 448 small layouts: 68 compiles, 36
@@ -231,7 +232,9 @@ def compiled(name: str, fn: Callable, static: Hashable, args, export: bool = Tru
     t0 = time.perf_counter()
     use_persistent_cache()
     with float64():
+        loaded = STATS.loaded
         call = _exported_call(name, fn, key, specs) if export else None
+        traced = STATS.loaded == loaded  # fn was traced here, not read from disk
         aot = jax.jit(call if call is not None else fn).lower(*specs).compile()
     STATS.compiles += 1
     STATS.compile_s += time.perf_counter() - t0
@@ -242,6 +245,7 @@ def compiled(name: str, fn: Callable, static: Hashable, args, export: bool = Tru
 
     _CACHE[key] = exe
     _evict()
-    drop_tracing_caches()
+    if traced:  # a load from disk leaves little behind, and emptying would cost a warm run seconds
+        drop_tracing_caches()
     release_memory()
     return exe
