@@ -135,4 +135,3 @@ def test_layer_soft_places_bricks_layer_by_layer():
     tall = compile_soft(cuboid(4, 4, 12))
     key = soft_plan(tall.problem)
     assert key[0] == "layered" and plan_soft(tall.problem).layers.shape == key[1:]
-

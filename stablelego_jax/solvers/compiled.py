@@ -20,9 +20,9 @@ a changed solver never meets a stale entry.
 Compiles are counted (:data:`STATS`) so batch runs report compile time
 apart from solve time. After each compile that traced the function (not
 read from disk) JAX's tracing and lowering caches are emptied
-(:func:`drop_tracing_caches`; the executables stay) and after every compile the C
-allocator hands the memory that compiling and evicting freed back to the
-system (:func:`release_memory`). Without the latter, a run that keeps
+(:func:`drop_tracing_caches`; the executables stay), and after every
+compile the C allocator hands the memory that compiling and evicting freed
+back to the system (:func:`release_memory`). Without the latter, a run that keeps
 compiling new shapes (ADMM over 448 small layouts: 68 compiles, 36
 evictions) grew its resident memory by 430 MB after the cache was full,
 with it by 19 MB when the shapes came from disk; without the former, a
