@@ -14,7 +14,48 @@ import tempfile
 from .layout import LayoutError, cut
 
 __all__ = ["atomic_write", "atomic_write_text", "read_text", "read_bytes", "check_regular", "check_output",
-           "staged_outputs", "current_umask", "cut"]
+           "staged_outputs", "current_umask", "remove_temporaries", "cut"]
+
+#: temporary siblings being written now (removed by :func:`remove_temporaries` on a forced exit)
+_LIVE: set = set()
+
+
+def _temporary(path: str) -> str:
+    """A new empty temporary sibling of ``path`` (same folder, its name as
+    suffix), recorded as live; OSError names ``path``, not the temporary."""
+    try:
+        fd, tmp = tempfile.mkstemp(dir=os.path.dirname(os.path.abspath(path)), prefix=".tmp-",
+                                   suffix=os.path.basename(path))
+    except OSError as exc:
+        raise OSError(exc.errno, exc.strerror, path) from None
+    _LIVE.add(tmp)
+    os.close(fd)
+    return tmp
+
+
+def _settle(tmp: str, path: str | None) -> None:
+    """Rename the temporary ``tmp`` onto ``path`` (None: remove it)."""
+    try:
+        if path is None:
+            if os.path.exists(tmp):
+                os.unlink(tmp)
+        else:
+            os.replace(tmp, path)
+    finally:
+        _LIVE.discard(tmp)
+
+
+def remove_temporaries() -> int:
+    """Remove every temporary file a writer of this module has open now (for
+    a process about to end without unwinding, e.g. a forced Ctrl-C exit);
+    returns how many were removed."""
+    n = 0
+    for tmp in list(_LIVE):
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+            n += 1
+        _LIVE.discard(tmp)
+    return n
 
 
 def atomic_write(path: str, write, binary: bool = False) -> None:
@@ -25,21 +66,16 @@ def atomic_write(path: str, write, binary: bool = False) -> None:
     (0o666 & ~umask), not the 0600 of the temporary file.
     """
     path = os.fspath(path)
-    d = os.path.dirname(os.path.abspath(path))
     if os.path.isdir(path):
         raise OSError(errno.EISDIR, "is a folder, not a file", path)
+    tmp = _temporary(path)  # names the user's path on failure, not the temporary file
     try:
-        fd, tmp = tempfile.mkstemp(dir=d, prefix=".tmp-", suffix=os.path.basename(path))
-    except OSError as exc:  # name the user's path, not the temporary file
-        raise OSError(exc.errno, exc.strerror, path) from None
-    try:
-        with (os.fdopen(fd, "wb") if binary else os.fdopen(fd, "w", encoding="utf-8")) as fh:
+        with open(tmp, "wb" if binary else "w", **({} if binary else {"encoding": "utf-8"})) as fh:
             write(fh)
         os.chmod(tmp, 0o666 & ~current_umask())
-        os.replace(tmp, path)
+        _settle(tmp, path)
     except BaseException as exc:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
+        _settle(tmp, None)
         if isinstance(exc, OSError) and exc.filename in (tmp, None) and exc.errno is not None:
             raise OSError(exc.errno, exc.strerror, path) from None
         raise
@@ -123,9 +159,7 @@ def staged_outputs(paths):
     def stage(p: str) -> str:
         p = os.fspath(p)
         if p not in tmps:
-            fd, tmps[p] = tempfile.mkstemp(dir=os.path.dirname(os.path.abspath(p)), prefix=".tmp-",
-                                           suffix=os.path.basename(p))
-            os.close(fd)
+            tmps[p] = _temporary(p)
         return tmps[p]
 
     try:
@@ -142,11 +176,10 @@ def staged_outputs(paths):
                 raise LayoutError(user[exc.source], exc.message, exc.key, exc.what) from None
             raise
         mask = 0o666 & ~current_umask()
-        for p, tmp in tmps.items():
+        for p, tmp in list(tmps.items()):
             os.chmod(tmp, mask)
-            os.replace(tmp, p)
-        tmps.clear()
+            _settle(tmp, p)
+            del tmps[p]
     finally:
         for tmp in tmps.values():
-            if os.path.exists(tmp):
-                os.unlink(tmp)
+            _settle(tmp, None)

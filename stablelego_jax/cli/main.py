@@ -37,22 +37,33 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv=None) -> int:
     """Run one command; its exit status: 0 when everything asked was done,
     1 when some input failed, 2 for a usage or library error, 130 on Ctrl-C
-    (one line, no traceback; ``score`` resumes where it stopped)."""
+    (one line, no traceback; ``score`` resumes where it stopped).
+
+    Called with no ``argv`` (the ``stablelego`` program, ``python -m
+    stablelego_jax``), Ctrl-C ends the process within about a second, even
+    inside a long XLA or HiGHS call (:mod:`.interrupt`); called with an
+    ``argv`` list (from Python), it returns 130."""
     from ..blas import inline_cpu_dispatch
+    from .interrupt import end_process, prompt_interrupt
 
     args = build_parser().parse_args(argv)
     # before JAX's backend starts (a no-op once it has, e.g. in tests):
     # computations run inline on the calling thread (see stablelego_jax.blas)
     inline_cpu_dispatch()
+    resume = " (rerun the same command to resume)" if args.cmd == "score" else ""
+    message = f"stablelego {args.cmd}: interrupted{resume}"
     try:
-        if getattr(args, "library", None) is not None:
-            err = load_library(args)
-            if err:
-                return err
-        return args.func(args)
+        # Ctrl-C inside a long XLA / HiGHS call: the same line and exit status, within a second
+        with prompt_interrupt(message, code=130):
+            if getattr(args, "library", None) is not None:
+                err = load_library(args)
+                if err:
+                    return err
+            return args.func(args)
     except KeyboardInterrupt:
-        resume = " (rerun the same command to resume)" if args.cmd == "score" else ""
-        print(f"stablelego {args.cmd}: interrupted{resume}", file=sys.stderr, flush=True)
+        print(message, file=sys.stderr, flush=True)
+        if argv is None:  # the program itself: end now, not when native work in flight winds down
+            end_process(130)
         return 130
 
 
