@@ -113,17 +113,12 @@ def solve_jax(model: ForceModel, opts=None):
 
     from .solvers import admm, ipm
     from .solvers.compiled import compiled
-    from .solvers.problem import MIN_COLUMNS, MIN_SLOTS, Solution, pad_to_bucket, plan_problem, rung, solve_plan, \
-        to_problem
+    from .solvers.problem import MIN_COLUMNS, MIN_SLOTS, Solution, plan_problem, rung, solve_plan
 
-    if isinstance(opts, admm.SolverOptions):
-        padded = pad_to_bucket(model)
-        prob, name = to_problem(padded), "admm"
-    else:
-        opts = opts or ipm.IPMOptions()
-        m_pad, p_pad = rung(model.m, MIN_COLUMNS), rung(model.group.shape[1], MIN_SLOTS)
-        padded, prob = plan_problem(model, solve_plan(model), m_pad, p_pad)
-        name = "ipm"
+    opts = opts or ipm.IPMOptions()
+    name = "admm" if isinstance(opts, admm.SolverOptions) else "ipm"
+    m_pad, p_pad = rung(model.m, MIN_COLUMNS), rung(model.group.shape[1], MIN_SLOTS)
+    padded, prob = plan_problem(model, solve_plan(model), m_pad, p_pad)
     arrays = tuple(a for a in prob if a is not None)
     exe = compiled(name, solver_fn(model.params, opts), (model.params, opts), arrays)
     return Solution(*jax.device_get(exe(*arrays))), padded

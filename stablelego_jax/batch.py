@@ -58,7 +58,6 @@ from .solvers.problem import (
     rung,
     solve_plan,
     stack_problems,
-    to_problem,
 )
 
 __all__ = ["find_layouts", "read_results", "ScoreStats", "iter_analyses", "analyze_many", "score_files",
@@ -388,14 +387,13 @@ class SolveUnit:
 
 def solve_units(loaded, solver: str, batch: int, n_dev: int, merge: bool = True) -> list:
     """The :class:`SolveUnit` list of compiled layouts ``loaded`` ((i, layout,
-    ForceModel)): grouped by solver bucket (interior point: dense or layered
-    shape, small buckets merged into larger ones when that costs less than a
-    compile; ADMM: bricks bucket), each group padded to its largest column
-    and slot counts and cut into pieces of at most one batch."""
+    ForceModel)): grouped by solver bucket (dense or layered shape, both
+    solvers; interior point: small buckets merged into larger ones when that
+    costs less than a compile), each group padded to its largest column and
+    slot counts and cut into pieces of at most one batch."""
     groups: dict = {}
     for item in loaded:
-        key = solve_plan(item[2]) if solver == "jax" else ("dense", rung(item[2].n, MIN_BRICKS))
-        groups.setdefault(key, []).append(item)
+        groups.setdefault(solve_plan(item[2]), []).append(item)
     if solver == "jax" and merge:
         # small buckets join a larger one when that costs less than a compile (not ADMM: measured,
         # merged buckets ran 1.9x longer, a batch iterating until its slowest layout converges)
@@ -442,11 +440,7 @@ def _solve_unit(unit: SolveUnit, solver: str, params: Params, opts, n_dev: int, 
 
     prepared = []
     for it in unit.items:
-        if solver == "jax":
-            fm, prob = plan_problem(it[2], unit.key, unit.m_pad, unit.p_pad)
-        else:
-            fm = it[2].pad(unit.key[1], unit.m_pad, unit.p_pad)
-            prob = to_problem(fm)
+        fm, prob = plan_problem(it[2], unit.key, unit.m_pad, unit.p_pad)
         prepared.append((it, fm, prob))
     bsz = unit.bsz
     # ADMM: pass 1 with an iteration cap; only layouts it leaves uncertified

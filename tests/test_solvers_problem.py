@@ -13,6 +13,10 @@ from stablelego_jax.solvers.problem import (
     batch_rung,
     bucket_shape,
     layer_bucket,
+    layer_gram,
+    layer_plan,
+    layered_problem,
+    operators,
     pad_soft,
     pad_to_bucket,
     plan_problem,
@@ -135,3 +139,31 @@ def test_layer_soft_places_bricks_layer_by_layer():
     tall = compile_soft(cuboid(4, 4, 12))
     key = soft_plan(tall.problem)
     assert key[0] == "layered" and plan_soft(tall.problem).layers.shape == key[1:]
+
+
+@pytest.mark.usefixtures("x64")
+@pytest.mark.parametrize("layered", [False, True])
+def test_layer_gram_blocks_are_the_dense_weighted_gram(layered):
+    """LayerGram.blocks(e) holds A diag(e) A' (A the scaled equilibrium
+    operator): its diagonal blocks, the blocks below them, nothing else."""
+    m = compile_layout(cuboid(3, 2, 4))
+    if layered:
+        L, B = layer_bucket(*layer_plan(m))
+        prob = layered_problem(to_layered(m, L, B), L)
+    else:
+        prob = layered_problem(m, 1)
+    A, _, coef, _, _ = operators(prob, m.params)
+    gram = layer_gram(prob, coef)
+    n, mm = prob.gravity.shape[0], prob.col_kind.shape[0]
+    assert (gram.L > 1) == layered and gram.L * gram.B == n and gram.k == 6 * gram.B
+    Ad = np.stack([np.asarray(A(np.eye(mm)[j])).reshape(-1) for j in range(mm)], axis=1)  # (6n, m)
+    e = np.random.default_rng(1).uniform(0.5, 2.0, size=mm)
+    M = (Ad * e) @ Ad.T
+    D, E = (np.asarray(x) for x in gram.blocks(np.asarray(e)))
+    k = gram.k
+    for i in range(gram.L):
+        np.testing.assert_allclose(D[i], M[i * k:(i + 1) * k, i * k:(i + 1) * k], atol=1e-12)
+        if i + 1 < gram.L:
+            np.testing.assert_allclose(E[i], M[(i + 1) * k:(i + 2) * k, i * k:(i + 1) * k], atol=1e-12)
+        for j in range(i + 2, gram.L):  # block tridiagonal
+            assert not M[j * k:(j + 1) * k, i * k:(i + 1) * k].any()

@@ -8,8 +8,12 @@ Problem (scaled: forces in units of T, torques in N*stud):
 Splitting ``y = A x`` (graph form, as in POGS / OSQP), each iteration is
 
 * x-update: ``(diag(P) + A' R A) x = rhs``, solved through the Woodbury
-  identity with a dense Cholesky factor of ``M = R^-1 + A P^-1 A'``
-  (6 n x 6 n) computed once per rho;
+  identity with a Cholesky factor of ``M = R^-1 + A P^-1 A'`` (6 n x 6 n)
+  computed once per rho: block tridiagonal over the layers when the
+  problem is numbered layer by layer (``prob.layers``, as the interior
+  point's plan chooses: :func:`~stablelego_jax.solvers.problem.solve_plan`),
+  dense otherwise; the same assembly (:func:`~stablelego_jax.solvers.problem.layer_gram`)
+  and factorisation (:mod:`.blocks`) as the interior point;
 * z-update: closed-form proxes (soft threshold for the L1 residual rows; a
   grouped "max + sum" drag prox per brick, by sorting; projection for side
   presses);
@@ -34,7 +38,8 @@ import jax.numpy as jnp
 from ..model import KNOB, NORMAL, SIDE, Params
 from ..runtime import x64
 from ..score import largest_drag
-from .problem import Problem, Solution, make_solution, operators
+from .blocks import block_cholesky, block_solve
+from .problem import Problem, Solution, layer_gram, make_solution, operators
 
 __all__ = ["SolverOptions", "solve", "solve_batch"]
 
@@ -76,22 +81,6 @@ class SolverOptions:
     restart_necessary: float = 0.8
     restart_artificial: float = 0.2
     dtype: str = "float64"
-
-
-def _dense_M(prob: Problem, coef, pinv, rinv):
-    """M = diag(rinv) + A diag(pinv) A' as a dense (6n, 6n) matrix."""
-    n = prob.gravity.shape[0]
-    cb = prob.col_brick
-    idx = cb[:, :, None] * 6 + jnp.arange(6)[None, None, :]  # (m, 2, 6)
-    m = cb.shape[0]
-    idx = idx.reshape(m, 12)
-    c = coef.reshape(m, 12) * jnp.sqrt(pinv)[:, None]
-    outer = c[:, :, None] * c[:, None, :]  # (m, 12, 12)
-    N = 6 * (n + 1)
-    M = jnp.zeros((N, N), coef.dtype)
-    M = M.at[idx[:, :, None], idx[:, None, :]].add(outer)
-    M = M[: 6 * n, : 6 * n]
-    return M + jnp.diag(rinv.reshape(-1))
 
 
 def _drag_prox(v, prob: Problem, params: Params, step):
@@ -137,19 +126,20 @@ def solve(prob: Problem, params: Params = Params(), opts: SolverOptions = Solver
     constrained = (kind != KNOB) & prob.col_mask
     n, m = g.shape[0], kind.shape[0]
     a_r = opts.alpha_relax
+    gram = layer_gram(prob, coef)
 
     def factor(rho):
         rho_r, rho_xs = rho[0], rho[1]
         rho_x = jnp.where(constrained, rho_xs, 0.0)
         pdiag = opts.sigma + rho_x
-        rinv = jnp.full((n, 6), 1.0 / rho_r, dtype)
-        M = _dense_M(prob, coef, 1.0 / pdiag, rinv)
-        return jax.scipy.linalg.cho_factor(M, lower=True)[0], pdiag, rho_x
+        D, E = gram.blocks(1.0 / pdiag)
+        D = D + jnp.eye(gram.k, dtype=dtype) / rho_r  # + R^-1
+        return block_cholesky(D, E), pdiag, rho_x
 
     def xstep(x, zr, zx, ur, ux, rho_r, chol, pdiag, rho_x):
         q = opts.sigma * x + rho_x * (zx - ux) + At(rho_r * (zr - ur))
-        t = A(q / pdiag).reshape(-1)
-        s = jax.scipy.linalg.cho_solve((chol, True), t).reshape(n, 6)
+        t = A(q / pdiag).reshape(gram.L, gram.k)
+        s = block_solve(*chol, t).reshape(n, 6)
         return (q - At(s)) / pdiag
 
     def prox_x(v, rho_xs):

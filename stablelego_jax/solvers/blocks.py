@@ -32,7 +32,10 @@ __all__ = ["block_cholesky", "block_solve", "BlockLU", "block_lu", "block_lu_sol
 def block_cholesky(D, E):
     """Factor a block-tridiagonal SPD matrix (``F = E^T``).
     Returns (C, G): C[l] lower Cholesky factor of the l-th pivot block,
-    G[l] = C[l]^-1 E[l]'."""
+    G[l] = C[l]^-1 E[l]'. One layer (``L = 1``, a dense matrix): one
+    Cholesky factor and G = 0, with no triangular solve for it."""
+    if D.shape[0] == 1:
+        return jnp.linalg.cholesky(D), jnp.zeros_like(D)
 
     def body(Gprev, inp):
         Dl, El = inp
@@ -47,6 +50,9 @@ def block_cholesky(D, E):
 def block_solve(C, G, r):
     """Solve M y = r (r: (L, k)) with the factors of :func:`block_cholesky`."""
     tri = jax.scipy.linalg.solve_triangular
+    if C.shape[0] == 1:  # dense: two triangular solves, nothing coupling layers
+        y = tri(C[0], r[0], lower=True)
+        return tri(C[0], y, lower=True, trans=1)[None]
 
     def fwd(yprev, inp):
         Cl, Gprev, rl = inp

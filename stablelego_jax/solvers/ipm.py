@@ -36,7 +36,7 @@ import jax.numpy as jnp
 from ..model import NORMAL, SIDE, Params
 from ..runtime import x64
 from .blocks import block_cholesky, block_solve
-from .problem import Problem, Solution, make_solution, operators
+from .problem import Problem, Solution, layer_gram, make_solution, operators
 
 __all__ = ["IPMOptions", "solve"]
 
@@ -91,9 +91,8 @@ def _system(prob: Problem, params: Params, opts: IPMOptions) -> dict:
     prob = prob._replace(col_coef=prob.col_coef.astype(dtype), gravity=prob.gravity.astype(dtype))
     A, At, coef, g, w = operators(prob, params)
     n, m = g.shape[0], prob.col_kind.shape[0]
-    L = 1 if prob.layers is None else prob.layers.shape[0]
-    B = n // L
-    k6 = 6 * B
+    gram = layer_gram(prob, coef)  # the column part of M, block tridiagonal over the layers
+    L, B, k6 = gram.L, gram.B, gram.k
     w = jnp.where(prob.brick_mask[:, None], w, 1.0)  # padding rows: r = 0 at unit cost
     kind, cmask = prob.col_kind, prob.col_mask
     act_n = ((kind == NORMAL) & cmask).astype(dtype)
@@ -113,22 +112,10 @@ def _system(prob: Problem, params: Params, opts: IPMOptions) -> dict:
     # the canonical term on the forces: ridge / (total weight, in T) (see Params)
     reg = params.ridge / jnp.maximum(jnp.abs(g[:, 2]).sum(), 1e-30)
 
-    # --- static scatter indices for assembling the blocks of M
+    # --- static scatter plan for assembling the blocks of M
     cb = prob.col_brick
     c12 = coef.reshape(m, 12)
-    b12 = jnp.repeat(cb, 6, axis=1)  # (m, 12) brick of each coefficient
-    k12 = jnp.tile(jnp.arange(6), 2)[None, :]
-    lay12, pos12 = b12 // B, 6 * (b12 % B) + k12
-    rb, cbk = b12[:, :, None], b12[:, None, :]
-    lr, lc = lay12[:, :, None], lay12[:, None, :]
-    valid = (rb < n) & (cbk < n)
-    cell = pos12[:, :, None] * k6 + pos12[:, None, :]
-    drop = 2 * L * k6 * k6
-    idx_col = jnp.where(
-        valid & (lr == lc), lr * k6 * k6 + cell,
-        jnp.where(valid & (lr == lc + 1), (L + lc) * k6 * k6 + cell, drop),
-    )
-    outer = c12[:, :, None] * c12[:, None, :]
+    pos12 = gram.pos
     # per-brick rank-one vectors A q_b: slot-0 (owner) part and slot-1 part,
     # in the owner's layer (S) or the layer below (W)
     ob, lo = cb[:, 0], cb[:, 1]
@@ -143,10 +130,7 @@ def _system(prob: Problem, params: Params, opts: IPMOptions) -> dict:
     idx_sw = jnp.where(ok_n, jnp.concatenate([up, low], axis=1), dropsw)
 
     def assemble(e, q, rho, dr):
-        buf = jnp.zeros((2 * L * k6 * k6,), dtype)
-        buf = buf.at[idx_col].add(e[:, None, None] * outer, mode="drop")
-        D = buf[: L * k6 * k6].reshape(L, k6, k6)
-        E = buf[L * k6 * k6:].reshape(L, k6, k6)
+        D, E = gram.blocks(e)
         sw = jnp.zeros((2 * n * k6,), dtype).at[idx_sw].add(q[:, None] * c12, mode="drop")
         S = sw[: n * k6].reshape(L, B, k6)
         W = sw[n * k6:].reshape(L, B, k6)

@@ -43,6 +43,8 @@ __all__ = [
     "plan_problem",
     "row_scale",
     "operators",
+    "LayerGram",
+    "layer_gram",
     "make_solution",
 ]
 
@@ -57,7 +59,7 @@ class Problem(NamedTuple):
     group: jnp.ndarray  # (n, P) int32, m = empty
     gravity: jnp.ndarray  # (n, 6)
     brick_mask: jnp.ndarray  # (n,) bool
-    layers: jnp.ndarray | None = None  # (L,): bricks numbered layer by layer (ipm only)
+    layers: jnp.ndarray | None = None  # (L,): bricks numbered layer by layer (None: one layer, dense)
 
 
 class Solution(NamedTuple):
@@ -458,6 +460,51 @@ def operators(prob: Problem, params: Params):
     g = prob.gravity * s6
     w = jnp.where(prob.brick_mask[:, None], w6, 0.0) * jnp.ones_like(g)
     return A, At, coef, g, w
+
+
+class LayerGram(NamedTuple):
+    """Scatter plan of ``A diag(e) A'`` (the scaled equilibrium operator's
+    weighted Gram matrix, (6 n, 6 n)) as block-tridiagonal blocks over the
+    ``L`` layers of ``B`` brick slots of a problem (``L = 1``: one dense
+    block). Rows of a layer's block: ``6 * slot + component``; the blocks
+    are :mod:`.blocks`' layout. Built once per solve (static indices);
+    :meth:`blocks` assembles for any column weights."""
+
+    L: int
+    B: int
+    k: int  # 6 B, the block size
+    lay: jnp.ndarray  # (m, 12) layer of each of a column's 12 coefficients (n // B on the sink)
+    pos: jnp.ndarray  # (m, 12) row of each coefficient inside its layer's block
+    idx: jnp.ndarray  # (m, 12, 12) flat index into [D; E] of each coefficient pair (or past the end)
+    outer: jnp.ndarray  # (m, 12, 12) coefficient products
+
+    def blocks(self, e):
+        """(D, E), each (L, k, k): the diagonal blocks and the blocks below
+        them (``E[l]`` = block (l + 1, l)) of ``A diag(e) A'``; ``e``: (m,)."""
+        L, k = self.L, self.k
+        buf = jnp.zeros((2 * L * k * k,), e.dtype)
+        buf = buf.at[self.idx].add(e[:, None, None] * self.outer, mode="drop")
+        return buf[: L * k * k].reshape(L, k, k), buf[L * k * k:].reshape(L, k, k)
+
+
+def layer_gram(prob: Problem, coef) -> LayerGram:
+    """The :class:`LayerGram` of ``prob`` (``coef``: (m, 2, 6) scaled
+    coefficients from :func:`operators`). Every column joins bricks of one
+    layer or of two adjacent layers; coefficients of padding bricks (the
+    sink) are dropped."""
+    n, m = prob.gravity.shape[0], prob.col_brick.shape[0]
+    L = 1 if prob.layers is None else prob.layers.shape[0]
+    B = n // L
+    k = 6 * B
+    b12 = jnp.repeat(prob.col_brick, 6, axis=1)  # (m, 12) brick of each coefficient
+    lay, pos = b12 // B, 6 * (b12 % B) + jnp.tile(jnp.arange(6), 2)[None, :]
+    lr, lc = lay[:, :, None], lay[:, None, :]
+    valid = (b12[:, :, None] < n) & (b12[:, None, :] < n)
+    cell = pos[:, :, None] * k + pos[:, None, :]
+    idx = jnp.where(valid & (lr == lc), lr * k * k + cell,
+                    jnp.where(valid & (lr == lc + 1), (L + lc) * k * k + cell, 2 * L * k * k))
+    c12 = coef.reshape(m, 12)
+    return LayerGram(L, B, k, lay, pos, idx, c12[:, :, None] * c12[:, None, :])
 
 
 def make_solution(prob: Problem, params: Params, x, iters, converged, pr, dr, obj, dual, gap) -> Solution:
