@@ -42,7 +42,7 @@ from .layout import LayoutError
 from .model import Params, compile_layout
 from .progress import Progress
 from .solvers import admm, ipm
-from .solvers.compiled import STATS, compiled
+from .solvers.compiled import STATS, available, compiled
 from .solvers.problem import (
     COMPILE_S,
     MIN_BRICKS,
@@ -62,7 +62,7 @@ from .solvers.problem import (
 
 __all__ = ["find_layouts", "read_results", "ScoreStats", "iter_analyses", "analyze_many", "score_files",
            "batch_solver_fn", "batch_sizes", "plan_bytes", "parse_shard", "in_shard", "cpu_cores",
-           "RESULT_PREFIX", "SolveUnit", "solve_units", "assign_units", "POOL_MIN"]
+           "RESULT_PREFIX", "SolveUnit", "solve_units", "compiled_ready", "assign_units", "POOL_MIN"]
 
 LAYOUT_EXTS = (".json", ".txt", ".ldr")
 # files that sit beside StableLego layouts but are not layouts
@@ -358,7 +358,7 @@ def iter_analyses(
     if opts is None:
         opts = ipm.IPMOptions() if solver == "jax" else admm.SolverOptions()
     n_dev = _device_count(devices)
-    units = solve_units(loaded, solver, batch, n_dev, merge)
+    units = solve_units(loaded, solver, batch, n_dev, merge, ready=compiled_ready(params, opts, n_dev))
     jobs = min(max(1, int(jobs)), len(units))
     if jobs > 1 and n_dev == 1 and len(loaded) >= POOL_MIN:
         yield from _jax_pool(units, jobs, solver, params, opts, first_cap, fallback, st)
@@ -382,23 +382,40 @@ class SolveUnit:
 
     def seconds(self) -> float:
         """Rough solve time (s) of the interior point (:func:`~stablelego_jax.solvers.problem.plan_seconds`)."""
-        return len(self.items) * plan_seconds(self.key)
+        return len(self.items) * plan_seconds(self.key, self.m_pad)
 
 
-def solve_units(loaded, solver: str, batch: int, n_dev: int, merge: bool = True) -> list:
+def _pieces(items: list, key: tuple, batch: int, n_dev: int) -> tuple:
+    """(m_pad, p_pad, bsz, padded batch sizes) of one bucket's ``items``."""
+    m_pad = rung(max(it[2].m for it in items), MIN_COLUMNS)
+    p_pad = rung(max(it[2].group.shape[1] for it in items), MIN_SLOTS)
+    bsz = batch_sizes(plan_bytes(key, m_pad), batch, n_dev)
+    sizes = {batch_rung(len(items[b0: b0 + bsz]), n_dev, bsz) for b0 in range(0, len(items), bsz)}
+    return m_pad, p_pad, bsz, sizes
+
+
+def solve_units(loaded, solver: str, batch: int, n_dev: int, merge: bool = True, ready=None) -> list:
     """The :class:`SolveUnit` list of compiled layouts ``loaded`` ((i, layout,
     ForceModel)): grouped by solver bucket (dense or layered shape, both
     solvers; interior point: small buckets merged into larger ones when that
     costs less than a compile), each group padded to its largest column and
-    slot counts and cut into pieces of at most one batch."""
+    slot counts and cut into pieces of at most one batch. ``ready(key,
+    m_pad, p_pad, sizes, model) -> bool`` (optional): whether a bucket's
+    batched solvers are compiled already (this process or the disk cache);
+    such a bucket costs no compile, so it is not merged away."""
     groups: dict = {}
     for item in loaded:
         groups.setdefault(solve_plan(item[2]), []).append(item)
     if solver == "jax" and merge:
         # small buckets join a larger one when that costs less than a compile (not ADMM: measured,
         # merged buckets ran 1.9x longer, a batch iterating until its slowest layout converges)
+        done, m_pads = set(), {}
+        for k, v in groups.items():
+            m_pads[k], p_pad, _, sizes = _pieces(v, k, batch, n_dev)
+            if ready is not None and ready(k, m_pads[k], p_pad, sizes, v[0][2]):
+                done.add(k)
         into = merge_plans({k: [(rung(it[2].n, MIN_BRICKS), *layer_plan(it[2])) for it in v]
-                            for k, v in groups.items()})
+                            for k, v in groups.items()}, ready=done, m_pads=m_pads)
         merged: dict = {}
         for k, v in groups.items():
             merged.setdefault(into[k], []).extend(v)
@@ -406,11 +423,36 @@ def solve_units(loaded, solver: str, batch: int, n_dev: int, merge: bool = True)
     units = []
     for key in sorted(groups):
         items = groups[key]
-        m_pad = rung(max(it[2].m for it in items), MIN_COLUMNS)
-        p_pad = rung(max(it[2].group.shape[1] for it in items), MIN_SLOTS)
-        bsz = batch_sizes(plan_bytes(key, m_pad), batch, n_dev)
+        m_pad, p_pad, bsz, _ = _pieces(items, key, batch, n_dev)
         units += [SolveUnit(key, m_pad, p_pad, bsz, items[b0: b0 + bsz]) for b0 in range(0, len(items), bsz)]
     return units
+
+
+def _batch_name(opts) -> tuple:
+    """(name, options key) of the batched solver executable of ``opts``; ADMM's
+    iteration cap is an argument, so its capped and full passes share one."""
+    if isinstance(opts, ipm.IPMOptions):
+        return "batch-ipm", opts
+    return "batch-admm", dataclasses.replace(opts, max_iter=0)
+
+
+def compiled_ready(params: Params, opts, n_dev: int):
+    """The ``ready`` test of :func:`solve_units` for the batched solver of
+    ``opts`` on ``n_dev`` devices: every batch size of the bucket has its
+    executable in this process or on disk (:func:`~stablelego_jax.solvers.compiled.available`)."""
+    name, o_key = _batch_name(opts)
+
+    def ready(key, m_pad, p_pad, sizes, model) -> bool:
+        arrays = [a for a in plan_problem(model, key, m_pad, p_pad)[1] if a is not None]
+        for size in sizes:
+            specs = [jax.ShapeDtypeStruct((size,) + np.shape(a), np.result_type(a)) for a in arrays]
+            if name == "batch-admm":
+                specs.append(jax.ShapeDtypeStruct((size,), np.int32))
+            if not available(name, (params, o_key, n_dev), specs, export=n_dev == 1):
+                return False
+        return True
+
+    return ready
 
 
 def _solve_unit(unit: SolveUnit, solver: str, params: Params, opts, n_dev: int, first_cap: int,
@@ -422,10 +464,8 @@ def _solve_unit(unit: SolveUnit, solver: str, params: Params, opts, n_dev: int, 
         size = batch_rung(len(probs), n_dev, bsz)
         probs = probs + [probs[-1]] * (size - len(probs))
         arrays = tuple(a for a in stack_problems(probs) if a is not None)
-        if isinstance(o, ipm.IPMOptions):
-            name, o_key = "batch-ipm", o
-        else:  # the cap is an argument: both ADMM passes share one executable
-            name, o_key = "batch-admm", dataclasses.replace(o, max_iter=0)
+        name, o_key = _batch_name(o)
+        if name == "batch-admm":
             arrays += (np.full(size, o.max_iter, np.int32),)
         n0, t0c = STATS.compiles, STATS.compile_s
         exe = compiled(name, batch_solver_fn(params, o_key, n_dev), (params, o_key, n_dev), arrays,

@@ -181,6 +181,31 @@ def test_capped_first_pass_then_retry_of_uncertified(tmp_path):
         assert recs[p]["stable"] == ex.stable and recs[p]["weakest"] == ex.weakest
 
 
+def test_compiled_buckets_are_not_merged_away(monkeypatch, tmp_path):
+    """A bucket whose batched solver is compiled already (here: in this
+    process) is solved in its own shape, not padded into a larger bucket;
+    a bucket with nothing compiled merges as before."""
+    from stablelego_jax.batch import analyze_many, compiled_ready, solve_units
+    from stablelego_jax.model import Params, compile_layout
+    from stablelego_jax.solvers import compiled, ipm
+    from stablelego_jax.solvers.problem import solve_plan
+
+    # 32 small layouts (moving them costs more than a load, less than a compile), four larger
+    lays = [stairs(3)] * 32 + [tower(k) for k in range(20, 24)]
+    loaded = [(i, lay, compile_layout(lay, Params())) for i, lay in enumerate(lays)]
+    small = solve_plan(loaded[0][2])
+    assert all(solve_plan(it[2]) != small for it in loaded[32:])
+    ready = compiled_ready(Params(), ipm.IPMOptions(), 1)
+    monkeypatch.setenv("STABLELEGO_CACHE_DIR", str(tmp_path))  # nothing on disk yet
+    compiled.clear()
+    units = solve_units(loaded, "jax", 64, 1, ready=ready)
+    assert len(units) == 1 and units[0].key != small  # merged: one compile instead of two
+    analyze_many(lays[:32], "jax", merge=False)  # compiles the small bucket's solver
+    units = solve_units(loaded, "jax", 64, 1, ready=ready)
+    assert sorted(u.key for u in units) == sorted({small, units[-1].key}) and len(units) == 2
+    compiled.clear()
+
+
 def test_admm_passes_share_one_executable():
     """The capped first pass and the retry of what it left uncertified run
     the same compiled ADMM solver when their batches are equally padded

@@ -126,6 +126,32 @@ def test_executables_are_bounded(monkeypatch):
         C.clear()
 
 
+def test_available_says_whether_compiled_would_compile(monkeypatch, tmp_path):
+    """``available``: held in this process, or exported on disk by an
+    earlier compile (another process); a new shape or setting is not."""
+    import jax
+
+    monkeypatch.setenv("STABLELEGO_CACHE_DIR", str(tmp_path))
+    C.clear()
+
+    def f(x):
+        return (x * 6.0,)
+
+    spec = [jax.ShapeDtypeStruct((4,), np.float64)]
+    assert not C.available("sextuple", None, spec)
+    C.compiled("sextuple", f, None, (np.zeros(4),))
+    assert C.available("sextuple", None, spec)
+    C.clear()  # as a new process would start: only the disk knows it
+    assert C.available("sextuple", None, spec)
+    assert not C.available("sextuple", None, spec, export=False)
+    assert not C.available("sextuple", None, [jax.ShapeDtypeStruct((5,), np.float64)])
+    assert not C.available("sextuple", "other settings", spec)
+    before = C.STATS.loaded
+    C.compiled("sextuple", f, None, (np.zeros(4),))
+    assert C.STATS.loaded == before + 1  # read from disk, as available said
+    C.clear()
+
+
 def test_executables_are_let_go_when_memory_mappings_run_short(monkeypatch):
     """Past the mapping budget (half of vm.max_map_count) the cache keeps
     only the newest executable, whatever its count limit."""

@@ -111,6 +111,25 @@ def test_merge_plans_moves_small_buckets_when_cheaper_than_a_compile():
     assert len(sizes[("dense", 32)]) == 100  # the caller's dict is untouched
 
 
+def test_merge_plans_keeps_ready_buckets_and_counts_columns():
+    """A bucket whose solver is compiled already saves only a load by moving,
+    so it stays; padded columns make a bucket's layouts cost more, and a
+    target that must pad its own layouts to more columns counts that too."""
+    from stablelego_jax.solvers.problem import merge_plans, plan_seconds
+
+    assert plan_seconds(("dense", 16), 1000) > plan_seconds(("dense", 16), 500) > 0
+    assert plan_seconds(("layered", 12, 12)) > plan_seconds(("layered", 12, 8))
+    # 60 layouts: moving them costs more than a load (0.4 s), less than a compile
+    sizes = {("dense", 24): [(24, 4, 8)] * 60, ("dense", 32): [(32, 5, 8)] * 100}
+    assert merge_plans(sizes)[("dense", 24)] == ("dense", 32)
+    assert merge_plans(sizes, ready={("dense", 24)})[("dense", 24)] == ("dense", 24)
+    # the layouts of the small bucket have many columns: merging them
+    # would pad the 100 of the target to those columns too
+    m_pads = {("dense", 24): 8192, ("dense", 32): 1096}
+    assert merge_plans(sizes, m_pads=m_pads)[("dense", 24)] == ("dense", 24)
+    assert merge_plans(sizes, m_pads={("dense", 24): 872, ("dense", 32): 1096})[("dense", 24)] == ("dense", 32)
+
+
 def test_layer_soft_places_bricks_layer_by_layer():
     from stablelego_jax.solvers.problem import layer_soft, plan_soft, soft_layer_plan, soft_plan
 

@@ -45,7 +45,7 @@ import numpy as np
 from ..files import atomic_write
 from ..runtime import cache_dir, float64, use_persistent_cache
 
-__all__ = ["CompileStats", "STATS", "compiled", "clear", "set_limit", "cache_size", "code_digest", "map_budget",
+__all__ = ["CompileStats", "STATS", "compiled", "available", "clear", "set_limit", "cache_size", "code_digest", "map_budget",
            "mappings", "release_memory", "drop_tracing_caches"]
 
 
@@ -181,6 +181,22 @@ def _specs(args) -> tuple:
     return tuple(jax.ShapeDtypeStruct(np.shape(a), np.result_type(a)) for a in args)
 
 
+def _key(name: str, static: Hashable, specs: tuple) -> tuple:
+    return (name, static, tuple((tuple(s.shape), str(s.dtype)) for s in specs))
+
+
+def available(name: str, static: Hashable, specs, export: bool = True) -> bool:
+    """Whether :func:`compiled` would find this executable ready (held in
+    this process, or, with ``export``, its export on disk, written when it
+    was first compiled, next to XLA's code for it) instead of tracing and
+    compiling it. ``specs``: ``jax.ShapeDtypeStruct`` of the arguments."""
+    key = _key(name, static, tuple(specs))
+    if key in _CACHE:
+        return True
+    path = _export_path(name, key) if export else None
+    return path is not None and os.path.isfile(path)
+
+
 def _export_path(name: str, key: tuple) -> str | None:
     d = cache_dir()
     if d is None:
@@ -223,7 +239,7 @@ def compiled(name: str, fn: Callable, static: Hashable, args, export: bool = Tru
     over, e.g. parameters and options) identify it. ``export``: also use
     the disk export cache (functions on one device)."""
     specs = _specs(args)
-    key = (name, static, tuple((s.shape, str(s.dtype)) for s in specs))
+    key = _key(name, static, specs)
     exe = _CACHE.get(key)
     if exe is not None:
         _CACHE.move_to_end(key)

@@ -19,6 +19,7 @@ __all__ = [
     "merge_plans",
     "plan_seconds",
     "COMPILE_S",
+    "LOAD_S",
     "Problem",
     "Solution",
     "to_problem",
@@ -365,17 +366,36 @@ def solve_plan(model: ForceModel) -> tuple:
 
 
 #: Seconds one compile of a batched interior-point solver takes on a CPU core
-#: (3.5-6 s measured for every shape, small or large: benchmarks/compile_time.py).
-COMPILE_S = 4.0
+#: (3.5-6 s measured for every shape, small or large, in session 8:
+#: benchmarks/compile_time.py; 8.7-8.9 s per shape on one core of this machine
+#: in session 21); and one load of a compiled solver from the disk cache
+#: (0.34-0.37 s per shape, session 21).
+COMPILE_S = 8.0
+LOAD_S = 0.4
+
+#: Columns per padded brick of a typical layout (dense buckets of the small set: 28-54).
+COLUMNS_PER_BRICK = 36
 
 
-def plan_seconds(key: tuple) -> float:
-    """Rough seconds one layout of bucket ``key`` takes in a batched solve
-    (fitted to batched CPU solves: dense 8/32/48 bricks 1.3/13/34 ms,
-    layered 16 x 16 143 ms): 1 ms plus 4 ns per flop of one factorisation
-    ((6 n)^3 / 3 dense, 3 L (6 B)^3 layered)."""
-    flops = (6 * key[1]) ** 3 / 3 if key[0] == "dense" else 3 * key[1] * (6 * key[2]) ** 3
-    return 1e-3 + 4e-9 * flops
+def plan_seconds(key: tuple, m_pad: int | None = None, iters: int = 25) -> float:
+    """Rough seconds one layout of bucket ``key`` with ``m_pad`` columns
+    (default ``COLUMNS_PER_BRICK`` per padded brick) takes in a batched
+    interior-point solve of ``iters`` iterations. Per iteration, fitted to
+    warm batched solves of 200 small layouts on one CPU core (session 21,
+    to 10% on 14 buckets): 0.96 us per column (the weighted Gram's scatter
+    and the operators), and for ``k = 6 B`` rows of a factor block 22.5 ns
+    k^2 + 26 ps k^3 dense (``B`` = the padded bricks), 38 ns k^2 + 97 ps
+    k^3 per layer layered (a Cholesky, a triangular solve and a product
+    per layer)."""
+    if key[0] == "dense":
+        L, k = 1, 6 * key[1]
+        per_k = 2.25e-5 * k * k + 2.6e-8 * k ** 3
+    else:
+        L, k = key[1], 6 * key[2]
+        per_k = L * (3.84e-5 * k * k + 9.7e-8 * k ** 3)
+    if m_pad is None:
+        m_pad = COLUMNS_PER_BRICK * (key[1] if key[0] == "dense" else L * key[2])
+    return iters * 1e-3 * (0.96e-3 * m_pad + per_k)
 
 
 def _fits(key: tuple, size: tuple) -> bool:
@@ -385,23 +405,33 @@ def _fits(key: tuple, size: tuple) -> bool:
     return n_b <= key[1] if key[0] == "dense" else (L <= key[1] and B <= key[2])
 
 
-def merge_plans(sizes: dict, compile_s: float = COMPILE_S) -> dict:
+def merge_plans(sizes: dict, compile_s: float = COMPILE_S, ready=frozenset(), m_pads=None,
+                load_s: float = LOAD_S) -> dict:
     """Fewer compiled shapes for one run: ``sizes`` maps each bucket key
     (:func:`solve_plan`) to the (padded bricks, layers, slots per layer) of
     its layouts; returns {key: key to solve it in}. A bucket moves into a
     larger bucket of the same run (one its layouts fit in) when solving its
-    layouts there costs less extra time (:func:`plan_seconds`) than
+    layouts there costs less extra time (:func:`plan_seconds`, with the
+    buckets' padded columns ``m_pads`` {key: m_pad} when given) than
     ``compile_s``, one compile; the smallest buckets move first, each to the
-    cheapest target. With ``compile_s`` = 0 nothing moves."""
+    cheapest target. A bucket in ``ready`` (its solvers compiled already: in
+    this process or on disk) saves only ``load_s`` by moving. With
+    ``compile_s`` = 0 nothing moves."""
     sizes = {k: list(v) for k, v in sizes.items()}
+    m_pads = dict(m_pads) if m_pads else {k: None for k in sizes}
     target = {k: k for k in sizes}
     count = {k: len(v) for k, v in sizes.items()}
-    for k in sorted(sizes, key=lambda k: (count[k], plan_seconds(k))):
-        best, best_extra = None, compile_s
+
+    def cost(k):
+        return plan_seconds(k, m_pads[k])
+
+    for k in sorted(sizes, key=lambda k: (count[k], cost(k))):
+        best, best_extra = None, min(compile_s, load_s) if k in ready else compile_s
         for t in sizes:
             if t == k or target[t] != t or not all(_fits(t, sz) for sz in sizes[k]):
                 continue
-            extra = count[k] * (plan_seconds(t) - plan_seconds(k))
+            m_t = None if m_pads[t] is None else max(m_pads[t], m_pads[k] or 0)
+            extra = count[k] * (plan_seconds(t, m_t) - cost(k)) + count[t] * (plan_seconds(t, m_t) - cost(t))
             if extra < best_extra:
                 best, best_extra = t, extra
         if best is not None:
@@ -410,6 +440,8 @@ def merge_plans(sizes: dict, compile_s: float = COMPILE_S) -> dict:
                     target[j] = best
             count[best] += count[k]
             sizes[best] += sizes[k]
+            if m_pads[best] is not None:
+                m_pads[best] = max(m_pads[best], m_pads[k] or 0)
     return target
 
 
