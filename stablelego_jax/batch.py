@@ -53,6 +53,7 @@ from .solvers.problem import (
     batch_rung,
     layer_plan,
     merge_plans,
+    chunk_rows,
     plan_problem,
     plan_seconds,
     rung,
@@ -371,14 +372,16 @@ def iter_analyses(
 class SolveUnit:
     """One batch-sized piece of a solver bucket: ``items`` ((i, layout,
     ForceModel)) padded to ``key`` (:func:`~stablelego_jax.solvers.problem.solve_plan`),
-    ``m_pad`` columns and ``p_pad`` contact slots, solved ``bsz`` at a time.
-    The pieces of one bucket share these, so they share compiled solvers."""
+    ``m_pad`` columns, ``p_pad`` contact slots and ``c_pad`` column chunks
+    (None: each layout its own ladder rung), solved ``bsz`` at a time. The
+    pieces of one bucket share these, so they share compiled solvers."""
 
     key: tuple
     m_pad: int
     p_pad: int
     bsz: int
     items: list
+    c_pad: int | None = None
 
     def seconds(self) -> float:
         """Rough solve time (s) of the interior point (:func:`~stablelego_jax.solvers.problem.plan_seconds`)."""
@@ -386,12 +389,13 @@ class SolveUnit:
 
 
 def _pieces(items: list, key: tuple, batch: int, n_dev: int) -> tuple:
-    """(m_pad, p_pad, bsz, padded batch sizes) of one bucket's ``items``."""
+    """(m_pad, p_pad, c_pad, bsz, padded batch sizes) of one bucket's ``items``."""
     m_pad = rung(max(it[2].m for it in items), MIN_COLUMNS)
     p_pad = rung(max(it[2].group.shape[1] for it in items), MIN_SLOTS)
+    c_pad = rung(max(chunk_rows(it[2]) for it in items), 8)
     bsz = batch_sizes(plan_bytes(key, m_pad), batch, n_dev)
     sizes = {batch_rung(len(items[b0: b0 + bsz]), n_dev, bsz) for b0 in range(0, len(items), bsz)}
-    return m_pad, p_pad, bsz, sizes
+    return m_pad, p_pad, c_pad, bsz, sizes
 
 
 def solve_units(loaded, solver: str, batch: int, n_dev: int, merge: bool = True, ready=None) -> list:
@@ -400,7 +404,7 @@ def solve_units(loaded, solver: str, batch: int, n_dev: int, merge: bool = True,
     solvers; interior point: small buckets merged into larger ones when that
     costs less than a compile), each group padded to its largest column and
     slot counts and cut into pieces of at most one batch. ``ready(key,
-    m_pad, p_pad, sizes, model) -> bool`` (optional): whether a bucket's
+    m_pad, p_pad, c_pad, sizes, model) -> bool`` (optional): whether a bucket's
     batched solvers are compiled already (this process or the disk cache);
     such a bucket costs no compile, so it is not merged away."""
     groups: dict = {}
@@ -411,8 +415,8 @@ def solve_units(loaded, solver: str, batch: int, n_dev: int, merge: bool = True,
         # merged buckets ran 1.9x longer, a batch iterating until its slowest layout converges)
         done, m_pads = set(), {}
         for k, v in groups.items():
-            m_pads[k], p_pad, _, sizes = _pieces(v, k, batch, n_dev)
-            if ready is not None and ready(k, m_pads[k], p_pad, sizes, v[0][2]):
+            m_pads[k], p_pad, c_pad, _, sizes = _pieces(v, k, batch, n_dev)
+            if ready is not None and ready(k, m_pads[k], p_pad, c_pad, sizes, v[0][2]):
                 done.add(k)
         into = merge_plans({k: [(rung(it[2].n, MIN_BRICKS), *layer_plan(it[2])) for it in v]
                             for k, v in groups.items()}, ready=done, m_pads=m_pads)
@@ -423,8 +427,9 @@ def solve_units(loaded, solver: str, batch: int, n_dev: int, merge: bool = True,
     units = []
     for key in sorted(groups):
         items = groups[key]
-        m_pad, p_pad, bsz, _ = _pieces(items, key, batch, n_dev)
-        units += [SolveUnit(key, m_pad, p_pad, bsz, items[b0: b0 + bsz]) for b0 in range(0, len(items), bsz)]
+        m_pad, p_pad, c_pad, bsz, _ = _pieces(items, key, batch, n_dev)
+        units += [SolveUnit(key, m_pad, p_pad, bsz, items[b0: b0 + bsz], c_pad)
+                  for b0 in range(0, len(items), bsz)]
     return units
 
 
@@ -442,8 +447,8 @@ def compiled_ready(params: Params, opts, n_dev: int):
     executable in this process or on disk (:func:`~stablelego_jax.solvers.compiled.available`)."""
     name, o_key = _batch_name(opts)
 
-    def ready(key, m_pad, p_pad, sizes, model) -> bool:
-        arrays = [a for a in plan_problem(model, key, m_pad, p_pad)[1] if a is not None]
+    def ready(key, m_pad, p_pad, c_pad, sizes, model) -> bool:
+        arrays = [a for a in plan_problem(model, key, m_pad, p_pad, c_pad)[1] if a is not None]
         for size in sizes:
             specs = [jax.ShapeDtypeStruct((size,) + np.shape(a), np.result_type(a)) for a in arrays]
             if name == "batch-admm":
@@ -480,7 +485,7 @@ def _solve_unit(unit: SolveUnit, solver: str, params: Params, opts, n_dev: int, 
 
     prepared = []
     for it in unit.items:
-        fm, prob = plan_problem(it[2], unit.key, unit.m_pad, unit.p_pad)
+        fm, prob = plan_problem(it[2], unit.key, unit.m_pad, unit.p_pad, unit.c_pad)
         prepared.append((it, fm, prob))
     bsz = unit.bsz
     # ADMM: pass 1 with an iteration cap; only layouts it leaves uncertified

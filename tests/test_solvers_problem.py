@@ -10,8 +10,10 @@ from stablelego_jax.generate.procedural import cuboid, stairs, tower
 from stablelego_jax.model import KNOB, compile_layout
 from stablelego_jax.soft import candidate_brick, compile_soft
 from stablelego_jax.solvers.problem import (
+    CHUNK,
     batch_rung,
     bucket_shape,
+    chunk_rows,
     layer_bucket,
     layer_gram,
     layer_plan,
@@ -172,17 +174,33 @@ def test_layer_gram_blocks_are_the_dense_weighted_gram(layered):
     else:
         prob = layered_problem(m, 1)
     A, _, coef, _, _ = operators(prob, m.params)
-    gram = layer_gram(prob, coef)
     n, mm = prob.gravity.shape[0], prob.col_kind.shape[0]
-    assert (gram.L > 1) == layered and gram.L * gram.B == n and gram.k == 6 * gram.B
     Ad = np.stack([np.asarray(A(np.eye(mm)[j])).reshape(-1) for j in range(mm)], axis=1)  # (6n, m)
     e = np.random.default_rng(1).uniform(0.5, 2.0, size=mm)
     M = (Ad * e) @ Ad.T
-    D, E = (np.asarray(x) for x in gram.blocks(np.asarray(e)))
-    k = gram.k
-    for i in range(gram.L):
-        np.testing.assert_allclose(D[i], M[i * k:(i + 1) * k, i * k:(i + 1) * k], atol=1e-12)
-        if i + 1 < gram.L:
-            np.testing.assert_allclose(E[i], M[(i + 1) * k:(i + 2) * k, i * k:(i + 1) * k], atol=1e-12)
-        for j in range(i + 2, gram.L):  # block tridiagonal
-            assert not M[j * k:(j + 1) * k, i * k:(i + 1) * k].any()
+    # columns grouped by brick pair (the problem's chunks, several per pair here), or one piece per column
+    assert prob.chunks is not None and (prob.chunks < mm).sum() == np.asarray(prob.col_mask).sum()
+    for p in (prob, prob._replace(chunks=None)):
+        gram = layer_gram(p, coef)
+        assert (gram.L > 1) == layered and gram.L * gram.B == n and gram.k == 6 * gram.B
+        D, E = (np.asarray(x) for x in gram.blocks(np.asarray(e)))
+        k = gram.k
+        for i in range(gram.L):
+            np.testing.assert_allclose(D[i], M[i * k:(i + 1) * k, i * k:(i + 1) * k], atol=1e-12)
+            if i + 1 < gram.L:
+                np.testing.assert_allclose(E[i], M[(i + 1) * k:(i + 2) * k, i * k:(i + 1) * k], atol=1e-12)
+            for j in range(i + 2, gram.L):  # block tridiagonal
+                assert not M[j * k:(j + 1) * k, i * k:(i + 1) * k].any()
+
+
+def test_layered_problem_pads_its_chunks():
+    """A problem's column chunks pad to the ladder or to a given row count
+    (a batch shares one), never below what its columns need."""
+    m = compile_layout(cuboid(3, 2, 4))
+    need = chunk_rows(m)
+    assert need > 0 and layered_problem(m, 1).chunks.shape == (rung(need, 8), CHUNK)
+    prob = layered_problem(m, 1, need + 5)
+    assert prob.chunks.shape == (need + 5, CHUNK)
+    assert (prob.chunks[need:] == prob.col_kind.shape[0]).all()  # padding rows name no column
+    with pytest.raises(ValueError, match="cannot pad"):
+        layered_problem(m, 1, need - 1)

@@ -40,6 +40,7 @@ __all__ = [
     "layer_bucket",
     "to_layered",
     "layered_problem",
+    "chunk_rows",
     "solve_plan",
     "plan_problem",
     "row_scale",
@@ -61,6 +62,7 @@ class Problem(NamedTuple):
     gravity: jnp.ndarray  # (n, 6)
     brick_mask: jnp.ndarray  # (n,) bool
     layers: jnp.ndarray | None = None  # (L,): bricks numbered layer by layer (None: one layer, dense)
+    chunks: jnp.ndarray | None = None  # (C, W) int32: columns grouped by brick pair, m = none (pair_chunks)
 
 
 class Solution(NamedTuple):
@@ -343,10 +345,26 @@ def to_layered(model: ForceModel, L: int, B: int) -> ForceModel:
     )
 
 
-def layered_problem(model: ForceModel, L: int) -> Problem:
+def chunk_rows(model) -> int:
+    """Rows of :func:`pair_chunks` of a model or problem (its real columns
+    grouped by brick pair, ``CHUNK`` per row)."""
+    return len(pair_chunks(model))
+
+
+def layered_problem(model: ForceModel, L: int, c_pad: int | None = None) -> Problem:
     """Problem arrays of an (already layered, ``n_pad = L B``) model; the
-    ``layers`` field (shape (L,)) carries the layer count through jit."""
-    return to_problem(model)._replace(layers=np.zeros(L, np.int8))
+    ``layers`` field (shape (L,)) carries the layer count through jit, and
+    ``chunks`` its columns grouped by brick pair (:func:`pair_chunks`),
+    padded to ``c_pad`` rows (default: the ladder) for the weighted Gram
+    (:func:`layer_gram`)."""
+    prob = to_problem(model)
+    c = pair_chunks(prob)
+    c_pad = rung(len(c), 8) if c_pad is None else c_pad
+    if c_pad < len(c):
+        raise ValueError(f"cannot pad {len(c)} column chunks to {c_pad}")
+    m = prob.col_kind.shape[0]
+    chunks = np.concatenate([c, np.full((c_pad - len(c), c.shape[1]), m)]).astype(np.int32)
+    return prob._replace(layers=np.zeros(L, np.int8), chunks=chunks)
 
 
 #: Layouts of at most this many (padded) bricks are always solved dense.
@@ -386,7 +404,9 @@ def plan_seconds(key: tuple, m_pad: int | None = None, iters: int = 25) -> float
     and the operators), and for ``k = 6 B`` rows of a factor block 22.5 ns
     k^2 + 26 ps k^3 dense (``B`` = the padded bricks), 38 ns k^2 + 97 ps
     k^3 per layer layered (a Cholesky, a triangular solve and a product
-    per layer)."""
+    per layer). Fitted before the Gram was assembled per chunk of columns
+    (:class:`LayerGram`), which took 1.1-1.4x off whole solves; the model
+    now overstates the column part, alike for every bucket."""
     if key[0] == "dense":
         L, k = 1, 6 * key[1]
         per_k = 2.25e-5 * k * k + 2.6e-8 * k ** 3
@@ -445,15 +465,18 @@ def merge_plans(sizes: dict, compile_s: float = COMPILE_S, ready=frozenset(), m_
     return target
 
 
-def plan_problem(model: ForceModel, key: tuple, m_pad: int, p_pad: int) -> tuple[ForceModel, Problem]:
+def plan_problem(model: ForceModel, key: tuple, m_pad: int, p_pad: int,
+                 c_pad: int | None = None) -> tuple[ForceModel, Problem]:
     """(model to score the forces on, Problem to solve) for bucket ``key`` with
-    ``m_pad`` columns and ``p_pad`` contact slots: the scoring model keeps the
-    input brick order; the Problem is numbered layer by layer when layered."""
+    ``m_pad`` columns, ``p_pad`` contact slots and ``c_pad`` column chunks
+    (default: the ladder of its own, :func:`chunk_rows`): the scoring model
+    keeps the input brick order; the Problem is numbered layer by layer when
+    layered."""
     if key[0] == "layered":
         fm = model.pad(model.n, m_pad, p_pad)
-        return fm, layered_problem(to_layered(fm, key[1], key[2]), key[1])
+        return fm, layered_problem(to_layered(fm, key[1], key[2]), key[1], c_pad)
     fm = model.pad(key[1], m_pad, p_pad)
-    return fm, layered_problem(fm, 1)
+    return fm, layered_problem(fm, 1, c_pad)
 
 
 # --------------------------------------------------------------- operators
@@ -500,22 +523,31 @@ class LayerGram(NamedTuple):
     ``L`` layers of ``B`` brick slots of a problem (``L = 1``: one dense
     block). Rows of a layer's block: ``6 * slot + component``; the blocks
     are :mod:`.blocks`' layout. Built once per solve (static indices);
-    :meth:`blocks` assembles for any column weights."""
+    :meth:`blocks` assembles for any column weights: per chunk of columns
+    joining one pair of bricks (``rows``, the problem's ``chunks``) a
+    (W, 12) x (W, 12) product, then one 12 x 12 piece placed per chunk;
+    without chunks one 12 x 12 piece per column."""
 
     L: int
     B: int
     k: int  # 6 B, the block size
     lay: jnp.ndarray  # (m, 12) layer of each of a column's 12 coefficients (n // B on the sink)
     pos: jnp.ndarray  # (m, 12) row of each coefficient inside its layer's block
-    idx: jnp.ndarray  # (m, 12, 12) flat index into [D; E] of each coefficient pair (or past the end)
-    outer: jnp.ndarray  # (m, 12, 12) coefficient products
+    idx: jnp.ndarray  # (R, 12, 12) flat index into [D; E] of each piece's entries (or past the end)
+    coef: jnp.ndarray  # (R, W, 12) coefficients of each piece's columns (W = 1 without chunks)
+    rows: jnp.ndarray | None  # (R, W) the piece's columns, m = none (None: piece r = column r)
 
     def blocks(self, e):
         """(D, E), each (L, k, k): the diagonal blocks and the blocks below
         them (``E[l]`` = block (l + 1, l)) of ``A diag(e) A'``; ``e``: (m,)."""
         L, k = self.L, self.k
+        if self.rows is None:
+            piece = e[:, None, None] * (self.coef[:, 0, :, None] * self.coef[:, 0, None, :])
+        else:
+            ew = jnp.concatenate([e, jnp.zeros((1,), e.dtype)])[self.rows]  # (R, W)
+            piece = jnp.einsum("rwi,rwj->rij", self.coef * ew[..., None], self.coef)
         buf = jnp.zeros((2 * L * k * k,), e.dtype)
-        buf = buf.at[self.idx].add(e[:, None, None] * self.outer, mode="drop")
+        buf = buf.at[self.idx].add(piece, mode="drop")
         return buf[: L * k * k].reshape(L, k, k), buf[L * k * k:].reshape(L, k, k)
 
 
@@ -523,20 +555,30 @@ def layer_gram(prob: Problem, coef) -> LayerGram:
     """The :class:`LayerGram` of ``prob`` (``coef``: (m, 2, 6) scaled
     coefficients from :func:`operators`). Every column joins bricks of one
     layer or of two adjacent layers; coefficients of padding bricks (the
-    sink) are dropped."""
+    sink) are dropped. Grouped by ``prob.chunks`` when it has them."""
     n, m = prob.gravity.shape[0], prob.col_brick.shape[0]
     L = 1 if prob.layers is None else prob.layers.shape[0]
     B = n // L
     k = 6 * B
+    comp = jnp.tile(jnp.arange(6), 2)[None, :]
     b12 = jnp.repeat(prob.col_brick, 6, axis=1)  # (m, 12) brick of each coefficient
-    lay, pos = b12 // B, 6 * (b12 % B) + jnp.tile(jnp.arange(6), 2)[None, :]
-    lr, lc = lay[:, :, None], lay[:, None, :]
-    valid = (b12[:, :, None] < n) & (b12[:, None, :] < n)
-    cell = pos[:, :, None] * k + pos[:, None, :]
+    lay, pos = b12 // B, 6 * (b12 % B) + comp
+    c12 = coef.reshape(m, 12)
+    if prob.chunks is None:
+        rows, rb12, rcoef = None, b12, c12[:, None, :]
+    else:
+        rows = prob.chunks
+        # a chunk's columns join one pair of bricks: those of its first column (none: the sink)
+        cb = jnp.concatenate([prob.col_brick, jnp.full((1, 2), n, prob.col_brick.dtype)])[rows[:, 0]]
+        rb12 = jnp.repeat(cb, 6, axis=1)
+        rcoef = jnp.concatenate([c12, jnp.zeros((1, 12), c12.dtype)])[rows]  # (R, W, 12)
+    rlay, rpos = rb12 // B, 6 * (rb12 % B) + comp
+    lr, lc = rlay[:, :, None], rlay[:, None, :]
+    valid = (rb12[:, :, None] < n) & (rb12[:, None, :] < n)
+    cell = rpos[:, :, None] * k + rpos[:, None, :]
     idx = jnp.where(valid & (lr == lc), lr * k * k + cell,
                     jnp.where(valid & (lr == lc + 1), (L + lc) * k * k + cell, 2 * L * k * k))
-    c12 = coef.reshape(m, 12)
-    return LayerGram(L, B, k, lay, pos, idx, c12[:, :, None] * c12[:, None, :])
+    return LayerGram(L, B, k, lay, pos, idx, rcoef, rows)
 
 
 def make_solution(prob: Problem, params: Params, x, iters, converged, pr, dr, obj, dual, gap) -> Solution:
