@@ -244,10 +244,11 @@ def layer_soft(prob: SoftProblem, L: int | None = None, B: int | None = None) ->
 CHUNK = 8
 
 
-def pair_chunks(prob: SoftProblem, width: int = CHUNK) -> np.ndarray:
-    """(C, width) int32: the real columns grouped by the pair of bricks they
-    join, ``width`` per row at most (a pair with more columns takes several
-    rows), ``m`` where a row has fewer."""
+def pair_chunks(prob, width: int = CHUNK) -> np.ndarray:
+    """(C, width) int32: the real columns of ``prob`` (a :class:`SoftProblem`,
+    :class:`Problem` or ForceModel: its ``col_brick``, ``col_mask``) grouped
+    by the pair of bricks they join, ``width`` per row at most (a pair with
+    more columns takes several rows), ``m`` where a row has fewer."""
     m = prob.col_kind.shape[0]
     cols = np.nonzero(np.asarray(prob.col_mask))[0]
     if len(cols) == 0:
