@@ -46,14 +46,15 @@ from .solvers.compiled import STATS, available, compiled
 from .solvers.problem import (
     COMPILE_S,
     MIN_BRICKS,
+    MIN_CHUNKS,
     MIN_COLUMNS,
     MIN_SLOTS,
     Problem,
     Solution,
     batch_rung,
+    chunk_rows,
     layer_plan,
     merge_plans,
-    chunk_rows,
     plan_problem,
     plan_seconds,
     rung,
@@ -388,11 +389,12 @@ class SolveUnit:
         return len(self.items) * plan_seconds(self.key, self.m_pad)
 
 
-def _pieces(items: list, key: tuple, batch: int, n_dev: int) -> tuple:
-    """(m_pad, p_pad, c_pad, bsz, padded batch sizes) of one bucket's ``items``."""
+def _pieces(items: list, key: tuple, batch: int, n_dev: int, crows: dict) -> tuple:
+    """(m_pad, p_pad, c_pad, bsz, padded batch sizes) of one bucket's ``items``
+    (``crows``: each item's column chunks, by index)."""
     m_pad = rung(max(it[2].m for it in items), MIN_COLUMNS)
     p_pad = rung(max(it[2].group.shape[1] for it in items), MIN_SLOTS)
-    c_pad = rung(max(chunk_rows(it[2]) for it in items), 8)
+    c_pad = rung(max(crows[it[0]] for it in items), MIN_CHUNKS)
     bsz = batch_sizes(plan_bytes(key, m_pad), batch, n_dev)
     sizes = {batch_rung(len(items[b0: b0 + bsz]), n_dev, bsz) for b0 in range(0, len(items), bsz)}
     return m_pad, p_pad, c_pad, bsz, sizes
@@ -410,12 +412,13 @@ def solve_units(loaded, solver: str, batch: int, n_dev: int, merge: bool = True,
     groups: dict = {}
     for item in loaded:
         groups.setdefault(solve_plan(item[2]), []).append(item)
+    crows = {it[0]: chunk_rows(it[2]) for it in loaded}
     if solver == "jax" and merge:
         # small buckets join a larger one when that costs less than a compile (not ADMM: measured,
         # merged buckets ran 1.9x longer, a batch iterating until its slowest layout converges)
         done, m_pads = set(), {}
         for k, v in groups.items():
-            m_pads[k], p_pad, c_pad, _, sizes = _pieces(v, k, batch, n_dev)
+            m_pads[k], p_pad, c_pad, _, sizes = _pieces(v, k, batch, n_dev, crows)
             if ready is not None and ready(k, m_pads[k], p_pad, c_pad, sizes, v[0][2]):
                 done.add(k)
         into = merge_plans({k: [(rung(it[2].n, MIN_BRICKS), *layer_plan(it[2])) for it in v]
@@ -427,7 +430,7 @@ def solve_units(loaded, solver: str, batch: int, n_dev: int, merge: bool = True,
     units = []
     for key in sorted(groups):
         items = groups[key]
-        m_pad, p_pad, c_pad, bsz, _ = _pieces(items, key, batch, n_dev)
+        m_pad, p_pad, c_pad, bsz, _ = _pieces(items, key, batch, n_dev, crows)
         units += [SolveUnit(key, m_pad, p_pad, bsz, items[b0: b0 + bsz], c_pad)
                   for b0 in range(0, len(items), bsz)]
     return units

@@ -45,8 +45,8 @@ import numpy as np
 from ..files import atomic_write
 from ..runtime import cache_dir, float64, use_persistent_cache
 
-__all__ = ["CompileStats", "STATS", "compiled", "available", "clear", "set_limit", "cache_size", "code_digest", "map_budget",
-           "mappings", "release_memory", "drop_tracing_caches"]
+__all__ = ["CompileStats", "STATS", "compiled", "available", "clear", "set_limit", "cache_size", "code_digest",
+           "map_budget", "mappings", "release_memory", "drop_tracing_caches"]
 
 
 @dataclasses.dataclass

@@ -122,6 +122,8 @@ def rung(k: int, base: int = 8, growth: float = 1.25) -> int:
 
 #: Smallest padded sizes (ladder bases) of bricks, columns and contact slots per brick.
 MIN_BRICKS, MIN_COLUMNS, MIN_SLOTS = 8, 64, 4
+#: ... and of column chunks (rows of :func:`pair_chunks`).
+MIN_CHUNKS = 8
 
 #: Padded layers and slots per layer of layered problems: finer than :func:`rung`
 #: at small sizes, where a layered factorisation costs ~ layers x slots^3.
@@ -178,11 +180,7 @@ def pad_soft(prob: SoftProblem, n_pad: int | None = None, m_pad: int | None = No
     if prob.slot is not None:
         slot = np.concatenate([prob.slot, np.full(dn, prob.layers.size)]).astype(np.int32)
     if prob.chunk is not None:
-        c = np.where(prob.chunk >= m, m_pad, prob.chunk)
-        c_pad = rung(len(c), 8) if c_pad is None else c_pad
-        if c_pad < len(c):
-            raise ValueError(f"cannot pad {len(c)} column chunks to {c_pad}")
-        chunk = np.concatenate([c, np.full((c_pad - len(c), c.shape[1]), m_pad)]).astype(np.int32)
+        chunk = _pad_chunks(np.where(prob.chunk >= m, m_pad, prob.chunk), c_pad, m_pad)
     return SoftProblem(
         col_brick=cb,
         col_coef=np.concatenate([prob.col_coef, np.zeros((dm, 2, 6))]),
@@ -346,6 +344,15 @@ def to_layered(model: ForceModel, L: int, B: int) -> ForceModel:
     )
 
 
+def _pad_chunks(c: np.ndarray, c_pad: int | None, m: int) -> np.ndarray:
+    """Column chunks ``c`` ((C, W), ``m`` = no column) padded with empty rows
+    to ``c_pad`` rows (None: the ladder)."""
+    c_pad = rung(len(c), MIN_CHUNKS) if c_pad is None else c_pad
+    if c_pad < len(c):
+        raise ValueError(f"cannot pad {len(c)} column chunks to {c_pad}")
+    return np.concatenate([c, np.full((c_pad - len(c), c.shape[1]), m)]).astype(np.int32)
+
+
 def chunk_rows(model) -> int:
     """Rows of :func:`pair_chunks` of a model or problem (its real columns
     grouped by brick pair, ``CHUNK`` per row)."""
@@ -359,12 +366,7 @@ def layered_problem(model: ForceModel, L: int, c_pad: int | None = None) -> Prob
     padded to ``c_pad`` rows (default: the ladder) for the weighted Gram
     (:func:`layer_gram`)."""
     prob = to_problem(model)
-    c = pair_chunks(prob)
-    c_pad = rung(len(c), 8) if c_pad is None else c_pad
-    if c_pad < len(c):
-        raise ValueError(f"cannot pad {len(c)} column chunks to {c_pad}")
-    m = prob.col_kind.shape[0]
-    chunks = np.concatenate([c, np.full((c_pad - len(c), c.shape[1]), m)]).astype(np.int32)
+    chunks = _pad_chunks(pair_chunks(prob), c_pad, prob.col_kind.shape[0])
     return prob._replace(layers=np.zeros(L, np.int8), chunks=chunks)
 
 
@@ -532,7 +534,6 @@ class LayerGram(NamedTuple):
     L: int
     B: int
     k: int  # 6 B, the block size
-    lay: jnp.ndarray  # (m, 12) layer of each of a column's 12 coefficients (n // B on the sink)
     pos: jnp.ndarray  # (m, 12) row of each coefficient inside its layer's block
     idx: jnp.ndarray  # (R, 12, 12) flat index into [D; E] of each piece's entries (or past the end)
     coef: jnp.ndarray  # (R, W, 12) coefficients of each piece's columns (W = 1 without chunks)
@@ -563,7 +564,7 @@ def layer_gram(prob: Problem, coef) -> LayerGram:
     k = 6 * B
     comp = jnp.tile(jnp.arange(6), 2)[None, :]
     b12 = jnp.repeat(prob.col_brick, 6, axis=1)  # (m, 12) brick of each coefficient
-    lay, pos = b12 // B, 6 * (b12 % B) + comp
+    pos = 6 * (b12 % B) + comp
     c12 = coef.reshape(m, 12)
     if prob.chunks is None:
         rows, rb12, rcoef = None, b12, c12[:, None, :]
@@ -579,7 +580,7 @@ def layer_gram(prob: Problem, coef) -> LayerGram:
     cell = rpos[:, :, None] * k + rpos[:, None, :]
     idx = jnp.where(valid & (lr == lc), lr * k * k + cell,
                     jnp.where(valid & (lr == lc + 1), (L + lc) * k * k + cell, 2 * L * k * k))
-    return LayerGram(L, B, k, lay, pos, idx, rcoef, rows)
+    return LayerGram(L, B, k, pos, idx, rcoef, rows)
 
 
 def make_solution(prob: Problem, params: Params, x, iters, converged, pr, dr, obj, dual, gap) -> Solution:
