@@ -29,6 +29,8 @@ from stablelego_jax.analysis import analyze_layout  # noqa: E402
 from stablelego_jax.files import atomic_write_text  # noqa: E402
 from stablelego_jax.solvers.admm import SolverOptions  # noqa: E402
 
+from rows import read_rows  # noqa: E402
+
 # rows computed with other solver settings are recomputed, never mixed in
 SETTINGS = repr(SolverOptions())
 
@@ -91,23 +93,6 @@ def summarise(rows: list[dict]) -> str:
     return "\n".join(lines)
 
 
-def read_rows(path: str) -> dict:
-    """{seed: row} of an earlier run of this script (its rows are not
-    ``score`` results, so ``batch.read_results`` refuses them); a torn last
-    line of an interrupted run is dropped."""
-    rows: dict = {}
-    if os.path.exists(path):
-        with open(path, encoding="utf-8") as fh:
-            for line in fh:
-                try:
-                    r = json.loads(line)
-                except ValueError:
-                    continue
-                if isinstance(r, dict) and "seed" in r:
-                    rows[r["seed"]] = r
-    return rows
-
-
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--n", type=int, default=300)
@@ -115,7 +100,7 @@ def main() -> None:
     args = ap.parse_args()
     os.makedirs(os.path.dirname(args.out), exist_ok=True)
     # rows of the current settings; a torn last line of an interrupted run is dropped
-    done = {s: r for s, r in read_rows(args.out).items() if r.get("settings") == SETTINGS}
+    done = {s: r for s, r in read_rows(args.out, "seed").items() if r.get("settings") == SETTINGS}
     t0 = time.time()
     if os.path.exists(args.out):
         # keep only rows of the current settings (rewritten atomically)
