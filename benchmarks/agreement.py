@@ -27,12 +27,13 @@ import numpy as np  # noqa: E402
 from stablelego_jax.generate.procedural import random_family_layout  # noqa: E402
 from stablelego_jax.analysis import analyze_layout  # noqa: E402
 from stablelego_jax.files import atomic_write_text  # noqa: E402
-from stablelego_jax.solvers.admm import SolverOptions  # noqa: E402
+from stablelego_jax.solvers.ipm import IPMOptions  # noqa: E402
 
 from rows import read_rows  # noqa: E402
 
-# rows computed with other solver settings are recomputed, never mixed in
-SETTINGS = repr(SolverOptions())
+# rows computed with other settings of the interior point (the solver analyze_layout
+# runs for "jax") are recomputed, never mixed in
+SETTINGS = repr(IPMOptions())
 
 
 def run_one(seed: int) -> dict:
