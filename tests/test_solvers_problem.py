@@ -11,6 +11,7 @@ from stablelego_jax.model import KNOB, compile_layout
 from stablelego_jax.soft import candidate_brick, compile_soft
 from stablelego_jax.solvers.problem import (
     CHUNK,
+    MIN_CHUNKS,
     batch_rung,
     bucket_shape,
     chunk_rows,
@@ -198,7 +199,7 @@ def test_layered_problem_pads_its_chunks():
     (a batch shares one), never below what its columns need."""
     m = compile_layout(cuboid(3, 2, 4))
     need = chunk_rows(m)
-    assert need > 0 and layered_problem(m, 1).chunks.shape == (rung(need, 8), CHUNK)
+    assert need > 0 and layered_problem(m, 1).chunks.shape == (rung(need, MIN_CHUNKS), CHUNK)
     prob = layered_problem(m, 1, need + 5)
     assert prob.chunks.shape == (need + 5, CHUNK)
     assert (prob.chunks[need:] == prob.col_kind.shape[0]).all()  # padding rows name no column

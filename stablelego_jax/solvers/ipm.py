@@ -66,7 +66,7 @@ class IPMOptions:
     infeasible method corrects a direction's error at the next iterate:
     on 98 layouts of 1-741 bricks, loads up to 10 kg, 0 and 2 steps gave
     the same iterations and the same distance to HiGHS, and 0 solves
-    1.2-1.6x faster, BENCHMARKS.md). The cost includes the
+    1.25-1.7x faster, BENCHMARKS.md). The cost includes the
     canonical term ``Params.ridge / (2 W) |x|^2`` (W: total weight), as the
     exact solver's (``exact.least_norm``).
     """

@@ -408,8 +408,11 @@ def plan_seconds(key: tuple, m_pad: int | None = None, iters: int = 25) -> float
     k^2 + 26 ps k^3 dense (``B`` = the padded bricks), 38 ns k^2 + 97 ps
     k^3 per layer layered (a Cholesky, a triangular solve and a product
     per layer). Fitted before the Gram was assembled per chunk of columns
-    (:class:`LayerGram`), which took 1.1-1.4x off whole solves; the model
-    now overstates the column part, alike for every bucket."""
+    (:class:`LayerGram`) and before iterative refinement went off; it now
+    overstates warm solves 1.3-1.6x, alike for every bucket (BENCHMARKS.md,
+    session 22). Kept so: scaled to fit, it let :func:`merge_plans` (which
+    counts no batch padding) move layouts into far larger shapes, slower
+    end to end."""
     if key[0] == "dense":
         L, k = 1, 6 * key[1]
         per_k = 2.25e-5 * k * k + 2.6e-8 * k ** 3
