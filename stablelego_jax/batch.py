@@ -389,6 +389,14 @@ class SolveUnit:
         return len(self.items) * plan_seconds(self.key, self.m_pad)
 
 
+def piece_sizes(key: tuple, m_pad: int, count: int, batch: int, n_dev: int) -> list:
+    """Padded batch size of each piece when ``count`` layouts of bucket
+    ``key`` with ``m_pad`` columns are solved at most ``batch`` at a time on
+    ``n_dev`` devices (:func:`batch_sizes`, :func:`~stablelego_jax.solvers.problem.batch_rung`)."""
+    bsz = batch_sizes(plan_bytes(key, m_pad), batch, n_dev)
+    return [batch_rung(min(bsz, count - b0), n_dev, bsz) for b0 in range(0, count, bsz)]
+
+
 def _pieces(items: list, key: tuple, batch: int, n_dev: int, crows: dict) -> tuple:
     """(m_pad, p_pad, c_pad, bsz, padded batch sizes) of one bucket's ``items``
     (``crows``: each item's column chunks, by index)."""
@@ -396,15 +404,15 @@ def _pieces(items: list, key: tuple, batch: int, n_dev: int, crows: dict) -> tup
     p_pad = rung(max(it[2].group.shape[1] for it in items), MIN_SLOTS)
     c_pad = rung(max(crows[it[0]] for it in items), MIN_CHUNKS)
     bsz = batch_sizes(plan_bytes(key, m_pad), batch, n_dev)
-    sizes = {batch_rung(len(items[b0: b0 + bsz]), n_dev, bsz) for b0 in range(0, len(items), bsz)}
-    return m_pad, p_pad, c_pad, bsz, sizes
+    return m_pad, p_pad, c_pad, bsz, set(piece_sizes(key, m_pad, len(items), batch, n_dev))
 
 
 def solve_units(loaded, solver: str, batch: int, n_dev: int, merge: bool = True, ready=None) -> list:
     """The :class:`SolveUnit` list of compiled layouts ``loaded`` ((i, layout,
     ForceModel)): grouped by solver bucket (dense or layered shape, both
     solvers; interior point: small buckets merged into larger ones when that
-    costs less than a compile), each group padded to its largest column and
+    lowers the estimated time, padded batches and compiles counted:
+    :func:`~stablelego_jax.solvers.problem.merge_plans`), each group padded to its largest column and
     slot counts and cut into pieces of at most one batch. ``ready(key,
     m_pad, p_pad, c_pad, sizes, model) -> bool`` (optional): whether a bucket's
     batched solvers are compiled already (this process or the disk cache);
@@ -422,7 +430,8 @@ def solve_units(loaded, solver: str, batch: int, n_dev: int, merge: bool = True,
             if ready is not None and ready(k, m_pads[k], p_pad, c_pad, sizes, v[0][2]):
                 done.add(k)
         into = merge_plans({k: [(rung(it[2].n, MIN_BRICKS), *layer_plan(it[2])) for it in v]
-                            for k, v in groups.items()}, ready=done, m_pads=m_pads)
+                            for k, v in groups.items()}, ready=done, m_pads=m_pads,
+                           pieces=lambda k, m, c: piece_sizes(k, m, c, batch, n_dev))
         merged: dict = {}
         for k, v in groups.items():
             merged.setdefault(into[k], []).extend(v)

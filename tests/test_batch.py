@@ -13,7 +13,8 @@ from stablelego_jax.generate.objects import analyze_and_write
 from stablelego_jax.generate.procedural import stairs, tower
 from stablelego_jax import load_layout
 from stablelego_jax.analysis import analyze
-from stablelego_jax.batch import ScoreStats, batch_sizes, find_layouts, plan_bytes, read_results, score_files
+from stablelego_jax.batch import (ScoreStats, batch_sizes, find_layouts, piece_sizes, plan_bytes, read_results,
+                                  score_files)
 from stablelego_jax.cli import main
 
 REF = os.path.join(EXAMPLES, "stablelego")
@@ -120,6 +121,16 @@ def test_batch_sizes_respect_memory_and_devices():
     assert batch_sizes(10 * big, 64, 2) == 2
     # the layer-by-layer plan of a 20-layer blob needs far less than its dense form
     assert plan_bytes(("layered", 20, 40), 8192) < plan_bytes(("dense", 800), 8192) / 10
+
+
+def test_piece_sizes_are_the_padded_batches_solved():
+    """Full batches, then the rest padded to a power of two (times the devices)."""
+    key = ("dense", 8)
+    assert piece_sizes(key, 64, 70, 64, 1) == [64, 8]
+    assert piece_sizes(key, 64, 64, 64, 1) == [64]
+    assert piece_sizes(key, 64, 5, 64, 2) == [8]
+    assert piece_sizes(key, 64, 130, 32, 1) == [32, 32, 32, 32, 2]
+    assert piece_sizes(("dense", 512), 4096, 3, 64, 1) == [1, 1, 1]  # one a batch: its memory
 
 
 def test_sharded_over_four_cpu_devices_matches(shard, tmp_path):

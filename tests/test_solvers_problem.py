@@ -205,3 +205,32 @@ def test_layered_problem_pads_its_chunks():
     assert (prob.chunks[need:] == prob.col_kind.shape[0]).all()  # padding rows name no column
     with pytest.raises(ValueError, match="cannot pad"):
         layered_problem(m, 1, need - 1)
+
+
+def test_merge_plans_counts_batch_padding_and_batch_sizes():
+    """A merge that pads the target's batch to the next power of two, or
+    cuts it into a second batch size (one more compile), pays for that:
+    the same moves that pay off unpadded are refused."""
+    from stablelego_jax.solvers.problem import COMPILE_S, batch_rung, merge_plans, plan_seconds
+
+    def cut(cap):
+        return lambda k, m, c: [batch_rung(min(cap, c - b0), 1, cap) for b0 in range(0, c, cap)]
+
+    small, big = ("layered", 12, 12), ("layered", 16, 16)
+    # 60 + 8 layouts: one batch of 64 becomes one of 128
+    sizes = {small: [(56, 9, 10)] * 8, big: [(96, 14, 16)] * 60}
+    unpadded = 8 * (plan_seconds(big) - plan_seconds(small))
+    padded = 128 * plan_seconds(big) - 64 * plan_seconds(big) - 8 * plan_seconds(small)
+    assert unpadded < COMPILE_S < padded
+    assert merge_plans(sizes)[small] == big
+    assert merge_plans(sizes, pieces=cut(128))[small] == small
+    # 64 + 20 layouts at most 64 a batch: batches of 64 and 32 (two compiles, 96 solved)
+    sizes = {("dense", 24): [(24, 4, 8)] * 20, ("dense", 32): [(32, 5, 8)] * 64}
+    p24, p32 = plan_seconds(("dense", 24)), plan_seconds(("dense", 32))
+    assert 20 * (p32 - p24) < COMPILE_S
+    assert 96 * p32 + 2 * COMPILE_S > 64 * p32 + 32 * p24 + 2 * COMPILE_S
+    assert merge_plans(sizes)[("dense", 24)] == ("dense", 32)
+    assert merge_plans(sizes, pieces=cut(64))[("dense", 24)] == ("dense", 24)
+    # with room in the target's padding the move is free of padding and still made
+    sizes = {("dense", 24): [(24, 4, 8)] * 4, ("dense", 32): [(32, 5, 8)] * 40}
+    assert merge_plans(sizes, pieces=cut(64))[("dense", 24)] == ("dense", 32)

@@ -432,32 +432,47 @@ def _fits(key: tuple, size: tuple) -> bool:
 
 
 def merge_plans(sizes: dict, compile_s: float = COMPILE_S, ready=frozenset(), m_pads=None,
-                load_s: float = LOAD_S) -> dict:
+                load_s: float = LOAD_S, pieces=None) -> dict:
     """Fewer compiled shapes for one run: ``sizes`` maps each bucket key
     (:func:`solve_plan`) to the (padded bricks, layers, slots per layer) of
     its layouts; returns {key: key to solve it in}. A bucket moves into a
-    larger bucket of the same run (one its layouts fit in) when solving its
-    layouts there costs less extra time (:func:`plan_seconds`, with the
-    buckets' padded columns ``m_pads`` {key: m_pad} when given) than
-    ``compile_s``, one compile; the smallest buckets move first, each to the
-    cheapest target. A bucket in ``ready`` (its solvers compiled already: in
-    this process or on disk) saves only ``load_s`` by moving. With
-    ``compile_s`` = 0 nothing moves."""
+    larger bucket of the same run (one its layouts fit in) when that lowers
+    the run's estimated time: the padded layouts' solve time
+    (:func:`plan_seconds`, with the buckets' padded columns ``m_pads``
+    {key: m_pad} when given) plus ``compile_s`` per distinct batch size
+    compiled. ``pieces(key, m_pad, count) -> [padded batch size of each
+    piece]`` says how a bucket of ``count`` layouts is cut into batches
+    (default: one unpadded batch), so that a merge which pads a batch to
+    the next power of two, or adds a batch size, pays for it. The smallest
+    buckets move first, each to the cheapest target. A bucket in ``ready``
+    (its solvers compiled already: in this process or on disk) costs only
+    ``load_s`` per batch size it had. With ``compile_s`` = 0 nothing
+    moves."""
     sizes = {k: list(v) for k, v in sizes.items()}
     m_pads = dict(m_pads) if m_pads else {k: None for k in sizes}
     target = {k: k for k in sizes}
     count = {k: len(v) for k, v in sizes.items()}
 
-    def cost(k):
-        return plan_seconds(k, m_pads[k])
+    def cut(k, m, c):
+        return [c] if pieces is None else list(pieces(k, m, c))
 
-    for k in sorted(sizes, key=lambda k: (count[k], cost(k))):
-        best, best_extra = None, min(compile_s, load_s) if k in ready else compile_s
+    have = {k: set(cut(k, m_pads[k], count[k])) if k in ready else set() for k in sizes}
+
+    def cost(k, m, c):
+        """Estimated seconds of bucket ``k`` with ``c`` layouts padded to ``m`` columns."""
+        p = cut(k, m, c)
+        built = sum(load_s if s in have[k] else compile_s for s in set(p)) if pieces else (
+            min(compile_s, load_s) if k in ready else compile_s)
+        return sum(p) * plan_seconds(k, m) + built
+
+    for k in sorted(sizes, key=lambda k: (count[k], plan_seconds(k, m_pads[k]))):
+        best, best_extra = None, 0.0
+        alone = cost(k, m_pads[k], count[k])
         for t in sizes:
             if t == k or target[t] != t or not all(_fits(t, sz) for sz in sizes[k]):
                 continue
             m_t = None if m_pads[t] is None else max(m_pads[t], m_pads[k] or 0)
-            extra = count[k] * (plan_seconds(t, m_t) - cost(k)) + count[t] * (plan_seconds(t, m_t) - cost(t))
+            extra = cost(t, m_t, count[t] + count[k]) - cost(t, m_pads[t], count[t]) - alone
             if extra < best_extra:
                 best, best_extra = t, extra
         if best is not None:
