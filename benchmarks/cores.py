@@ -12,6 +12,10 @@ Configurations (``--configs``):
   jax-2proc      JAX, 2 processes at once (``--shard 0/2`` and ``1/2``, ``--jobs 1`` each)
   exact-1        HiGHS, one process
   exact-2        HiGHS, ``--jobs 2`` (a pool of 2 worker processes)
+  vertex-2       HiGHS' optimal vertex without the canonical (least-norm) stage, ``--jobs 2``:
+                 ``score_files(..., params=Params(ridge=0))`` in a child process, as no
+                 command-line flag turns the canonical stage off; labels are the same
+                 (one optimal cost), scores of tied layouts are not
 
 Every JAX process has one XLA pool thread (``PJRT_NPROC=1``, set by the
 package on jaxlib 0.10: ``stablelego_jax.blas``); the flags of session 8's
@@ -23,7 +27,9 @@ the compiled solvers from disk. Wall time is measured around the
 process(es); solve and compile time are the command's own summary line;
 peak memory is the child's max RSS (``os.wait4``). Labels and highest
 scores of every JAX run are compared with the exact run's.
-Writes ``benchmarks/results/cores.json``.
+Writes ``benchmarks/results/cores.json``; ``--keep DIR`` keeps every run's
+results file there, ``--ref FILE`` compares against a kept exact run's
+results when this invocation runs no exact configuration.
 """
 from __future__ import annotations
 
@@ -48,7 +54,16 @@ CONFIGS = {
     "jax-2proc": dict(solver="jax", procs=2, jobs=1, devices="1"),
     "exact-1": dict(solver="exact", procs=1, jobs=1),
     "exact-2": dict(solver="exact", procs=1, jobs=2),
+    "vertex-2": dict(solver="exact", procs=1, jobs=2, vertex=True),
 }
+VERTEX = """
+import sys, time
+from stablelego_jax.batch import score_files
+from stablelego_jax.model import Params
+st = score_files(sys.argv[2:], sys.argv[1], solver="exact", params=Params(ridge=0.0), jobs=2, progress=False)
+print(f"solve {st.solve_s:.1f} s, compile {st.compile_s:.1f} s ({st.compiles} shapes), wall {st.wall_s:.1f} s",
+      file=sys.stderr)
+"""
 SUMMARY = re.compile(r"solve ([\d.]+) s, compile ([\d.]+) s \((\d+) shapes\), wall ([\d.]+) s")
 
 
@@ -65,10 +80,13 @@ def run_config(name: str, inputs: list, work: str, cache: str, run: int) -> dict
             os.remove(out)
         cmd = [sys.executable, "-m", "stablelego_jax.cli.main", "score", *inputs, "--out", out, "--quiet",
                "--solver", cfg["solver"]]
-        if cfg["solver"] == "jax":
+        if cfg.get("vertex"):
+            cmd = [sys.executable, "-c", VERTEX, out, *inputs]
+        elif cfg["solver"] == "jax":
             cmd += ["--devices", cfg["devices"]]
-        cmd += ["--jobs", str(cfg["jobs"])]
-        if cfg["procs"] > 1:
+        if not cfg.get("vertex"):
+            cmd += ["--jobs", str(cfg["jobs"])]
+        if cfg["procs"] > 1 and not cfg.get("vertex"):
             cmd += ["--shard", f"{k}/{cfg['procs']}"]
         procs.append(subprocess.Popen(cmd, env=env, cwd=ROOT, stderr=subprocess.PIPE, text=True))
         outs.append(out)
@@ -118,6 +136,9 @@ def main() -> None:
     ap.add_argument("--configs", default=",".join(CONFIGS))
     ap.add_argument("--runs", type=int, default=2, help="1: first run only; 2: first and warm")
     ap.add_argument("--out", default=os.path.join(HERE, "results", "cores.json"))
+    ap.add_argument("--keep", help="folder to keep every run's results file in")
+    ap.add_argument("--ref", nargs="+", help="results file(s) of an exact run to compare with "
+                    "(default: this invocation's exact run)")
     args = ap.parse_args()
     names = args.configs.split(",")
     work = tempfile.mkdtemp(prefix="stablelego-cores-")
@@ -128,15 +149,20 @@ def main() -> None:
             for run in range(1, args.runs + 1):
                 rec = run_config(name, args.inputs, work, cache, run)
                 recs.append(rec)
+                if args.keep:
+                    os.makedirs(args.keep, exist_ok=True)
+                    for o in rec["outs"]:
+                        shutil.copy(o, os.path.join(args.keep, os.path.basename(o)))
                 if "failed" in rec:
                     print(f"{name:10s} run {run}: FAILED {rec['failed']}", flush=True)
                     break
                 print(f"{name:10s} run {run}: wall {rec['wall_s']:7.1f} s  solve {rec['solve_s']:7.1f} s  "
                       f"compile {rec['compile_s']:7.1f} s ({rec['shapes']} shapes)  peak {rec['peak_rss_mb']:.0f} MB",
                       flush=True)
-        ref = next((results(r["outs"]) for r in recs if r["config"].startswith("exact")), None)
+        ref = results(args.ref) if args.ref else next(
+            (results(r["outs"]) for r in recs if r["config"].startswith("exact")), None)
         for r in recs:
-            if ref is not None and not r["config"].startswith("exact") and "failed" not in r:
+            if ref is not None and r["config"] != "exact-2" and r["config"] != "exact-1" and "failed" not in r:
                 r.update(agreement(ref, results(r["outs"])))
                 print(f"{r['config']:10s} run {r['run']}: labels {r['labels_agree']}/{r['compared']}, "
                       f"highest score (1e-3) {r['highest_score_agree']}/{r['compared']}")
