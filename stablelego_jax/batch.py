@@ -321,8 +321,9 @@ def iter_analyses(
     (JAX on one device: each worker solves whole batches, a bucket's
     batches kept on one worker unless splitting it pays for a second
     compile, :func:`assign_units`). ``merge`` (JAX): a bucket with few layouts is
-    solved in a larger bucket of the same call when that costs less than a
-    compile (:func:`~stablelego_jax.solvers.problem.merge_plans`). ``first_cap`` (ADMM only): iteration cap of a
+    solved in a larger bucket of the same call when that lowers the
+    estimated time, padded batches and compiles counted
+    (:func:`~stablelego_jax.solvers.problem.merge_plans`). ``first_cap`` (ADMM only): iteration cap of a
     first pass, after which only uncertified layouts are solved again with
     the full budget. ``stats`` (a :class:`ScoreStats`) accumulates solve and
     compile time, compiles and non-converged counts. An Analysis of a JAX
@@ -422,7 +423,7 @@ def solve_units(loaded, solver: str, batch: int, n_dev: int, merge: bool = True,
         groups.setdefault(solve_plan(item[2]), []).append(item)
     crows = {it[0]: chunk_rows(it[2]) for it in loaded}
     if solver == "jax" and merge:
-        # small buckets join a larger one when that costs less than a compile (not ADMM: measured,
+        # small buckets join a larger one when that saves more than it costs (not ADMM: measured,
         # merged buckets ran 1.9x longer, a batch iterating until its slowest layout converges)
         done, m_pads = set(), {}
         for k, v in groups.items():
