@@ -401,27 +401,24 @@ COLUMNS_PER_BRICK = 36
 def plan_seconds(key: tuple, m_pad: int | None = None, iters: int = 25) -> float:
     """Rough seconds one layout of bucket ``key`` with ``m_pad`` columns
     (default ``COLUMNS_PER_BRICK`` per padded brick) takes in a batched
-    interior-point solve of ``iters`` iterations. Per iteration, fitted to
-    warm batched solves of 200 small layouts on one CPU core (session 21,
-    to 10% on 14 buckets): 0.96 us per column (the weighted Gram's scatter
-    and the operators), and for ``k = 6 B`` rows of a factor block 22.5 ns
-    k^2 + 26 ps k^3 dense (``B`` = the padded bricks), 38 ns k^2 + 97 ps
-    k^3 per layer layered (a Cholesky, a triangular solve and a product
-    per layer). Fitted before the Gram was assembled per chunk of columns
-    (:class:`LayerGram`) and before iterative refinement went off; it now
-    overstates warm solves 1.3-1.6x, alike for every bucket (BENCHMARKS.md,
-    session 22). Kept so: scaled to fit, it let :func:`merge_plans` (which
-    counts no batch padding) move layouts into far larger shapes, slower
-    end to end."""
+    interior-point solve of ``iters`` iterations. Per iteration: 0.67 us
+    per column (the weighted Gram and the operators), and for ``k = 6 B``
+    rows of a factor block 15.8 ns k^2 + 18 ps k^3 dense (``B`` = the
+    padded bricks), 27 ns k^2 + 68 ps k^3 per layer layered (a Cholesky,
+    a triangular solve and a product per layer). Fitted to warm batched
+    solves of 200 small layouts on one CPU core (session 21, to 10% on 14
+    buckets), then scaled by 0.7 to the solves with the Gram assembled per
+    chunk of columns and no iterative refinement (session 22: measured /
+    model 0.62-0.77 over 18 buckets, dense and layered alike)."""
     if key[0] == "dense":
         L, k = 1, 6 * key[1]
-        per_k = 2.25e-5 * k * k + 2.6e-8 * k ** 3
+        per_k = 1.58e-5 * k * k + 1.8e-8 * k ** 3
     else:
         L, k = key[1], 6 * key[2]
-        per_k = L * (3.84e-5 * k * k + 9.7e-8 * k ** 3)
+        per_k = L * (2.7e-5 * k * k + 6.8e-8 * k ** 3)
     if m_pad is None:
         m_pad = COLUMNS_PER_BRICK * (key[1] if key[0] == "dense" else L * key[2])
-    return iters * 1e-3 * (0.96e-3 * m_pad + per_k)
+    return iters * 1e-3 * (0.67e-3 * m_pad + per_k)
 
 
 def _fits(key: tuple, size: tuple) -> bool:
