@@ -57,10 +57,11 @@ CONFIGS = {
     "vertex-2": dict(solver="exact", procs=1, jobs=2, vertex=True),
 }
 VERTEX = """
-import sys, time
+import sys
 from stablelego_jax.batch import score_files
 from stablelego_jax.model import Params
-st = score_files(sys.argv[2:], sys.argv[1], solver="exact", params=Params(ridge=0.0), jobs=2, progress=False)
+st = score_files(sys.argv[3:], sys.argv[1], solver="exact", params=Params(ridge=0.0), jobs=int(sys.argv[2]),
+                 progress=False)
 print(f"solve {st.solve_s:.1f} s, compile {st.compile_s:.1f} s ({st.compiles} shapes), wall {st.wall_s:.1f} s",
       file=sys.stderr)
 """
@@ -78,16 +79,15 @@ def run_config(name: str, inputs: list, work: str, cache: str, run: int) -> dict
         out = os.path.join(work, f"{name}-run{run}-{k}.jsonl")
         if os.path.exists(out):
             os.remove(out)
-        cmd = [sys.executable, "-m", "stablelego_jax.cli.main", "score", *inputs, "--out", out, "--quiet",
-               "--solver", cfg["solver"]]
         if cfg.get("vertex"):
-            cmd = [sys.executable, "-c", VERTEX, out, *inputs]
-        elif cfg["solver"] == "jax":
-            cmd += ["--devices", cfg["devices"]]
-        if not cfg.get("vertex"):
-            cmd += ["--jobs", str(cfg["jobs"])]
-        if cfg["procs"] > 1 and not cfg.get("vertex"):
-            cmd += ["--shard", f"{k}/{cfg['procs']}"]
+            cmd = [sys.executable, "-c", VERTEX, out, str(cfg["jobs"]), *inputs]
+        else:
+            cmd = [sys.executable, "-m", "stablelego_jax.cli.main", "score", *inputs, "--out", out, "--quiet",
+                   "--solver", cfg["solver"], "--jobs", str(cfg["jobs"])]
+            if cfg["solver"] == "jax":
+                cmd += ["--devices", cfg["devices"]]
+            if cfg["procs"] > 1:
+                cmd += ["--shard", f"{k}/{cfg['procs']}"]
         procs.append(subprocess.Popen(cmd, env=env, cwd=ROOT, stderr=subprocess.PIPE, text=True))
         outs.append(out)
     rec = dict(config=name, run=run, solve_s=0.0, compile_s=0.0, shapes=0, peak_rss_mb=0.0, outs=outs)
@@ -162,7 +162,7 @@ def main() -> None:
         ref = results(args.ref) if args.ref else next(
             (results(r["outs"]) for r in recs if r["config"].startswith("exact")), None)
         for r in recs:
-            if ref is not None and r["config"] != "exact-2" and r["config"] != "exact-1" and "failed" not in r:
+            if ref is not None and not r["config"].startswith("exact") and "failed" not in r:
                 r.update(agreement(ref, results(r["outs"])))
                 print(f"{r['config']:10s} run {r['run']}: labels {r['labels_agree']}/{r['compared']}, "
                       f"highest score (1e-3) {r['highest_score_agree']}/{r['compared']}")
