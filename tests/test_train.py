@@ -100,6 +100,24 @@ def test_decoding_never_overlaps_and_stays_inside():
         np.testing.assert_allclose(np.asarray(net.coverage(jnp.asarray(q[None])))[0], count)
 
 
+def test_coverage_sums_every_placement_window_and_its_gradient():
+    # a direct count: each placement adds its probability to the cells of its
+    # window, clipped to the grid
+    rng = np.random.default_rng(3)
+    p = rng.random((2, 9, 11, 3, len(net.TYPES)))
+    want = np.zeros(p.shape[:4])
+    for b, x, y, z, k in np.ndindex(*p.shape):
+        sx, sy = net.TYPES[k]
+        want[b, x:x + sx, y:y + sy, z] += p[b, x, y, z, k]
+    np.testing.assert_allclose(np.asarray(net.coverage(jnp.asarray(p))), want, rtol=1e-12)
+    # d sum(cov * u) / d p[placement] = the sum of u over its window
+    u = rng.random(p.shape[:4])
+    g = np.asarray(jax.grad(lambda q: (net.coverage(q) * u).sum())(jnp.asarray(p)))
+    for b, x, y, z, k in [(0, 0, 0, 0, 0), (1, 8, 10, 2, 13), (0, 3, 4, 1, 10), (1, 5, 2, 0, 7)]:
+        sx, sy = net.TYPES[k]
+        assert np.isclose(g[b, x, y, z, k], u[b, x:x + sx, y:y + sy, z].sum(), rtol=1e-12)
+
+
 def test_checkpoint_resume_continues_exactly(tmp_path):
     cfg = _cfg(tmp_path)
     p_full, h_full = T.train(cfg, str(tmp_path / "a"), log=open(os.devnull, "w"))

@@ -1,0 +1,81 @@
+"""Compile time and time per step of the generator's training step.
+
+    python benchmarks/train_step.py [--config stablelego_jax/train/configs/default.json]
+        [--steps 12] [--lam 1000] [--json]
+
+Builds the training data of the config (``stablelego_jax.train.train.dataset``),
+then runs the training loop's own step (``make_fns``: forward pass, subsets
+of placements, loss + gradient with the soft interior point, optimizer
+update) on batches drawn as ``train`` draws them. Reports the first step
+(tracing and compiling the step included) and the median of the others, in
+seconds, and the process's peak resident memory. Run two code versions one
+after the other on the quiet machine to compare them.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import resource
+import sys
+import time
+
+import numpy as np
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+REPO = os.path.dirname(HERE)
+sys.path.insert(0, REPO)
+
+from stablelego_jax.blas import one_blas_thread  # noqa: E402
+from stablelego_jax.runtime import x64  # noqa: E402
+from stablelego_jax.train import train as T  # noqa: E402
+
+
+@x64
+def measure(cfg: dict, steps: int, lam: float) -> dict:
+    """{first_step_s, step_s (median of the rest), loss (last)} for ``steps`` steps."""
+    probs_fn, step_fn, opt = T.make_fns(cfg)[:3]
+    shapes = T.dataset(cfg, validation=True)[0]
+    tr = T.Arrays(shapes, cfg["crop"], cfg["grid"])
+    params = T.initial_params(cfg)
+    opt_state = opt.init(params)
+    rng = np.random.default_rng(cfg["seed"])
+    times, loss = [], None
+    with one_blas_thread():
+        for step in range(steps):
+            t0 = time.perf_counter()
+            b = rng.choice(len(shapes), size=cfg["batch"], replace=False)
+            x, valid, target = tr.x[b], tr.valid[b], tr.target[b]
+            p = np.asarray(probs_fn(params, x, valid))
+            sub = T.batch_subsets(p, valid, cfg, rng, tr.span[b])
+            bw = np.float64(T.bin_weight(cfg, step))
+            params, opt_state, loss, aux = step_fn(params, opt_state, np.float64(lam), bw, x, valid, target, sub)
+            loss = float(loss)
+            times.append(time.perf_counter() - t0)
+            print(f"step {step + 1}/{steps}: {times[-1]:.3f} s, loss {loss:.6f}", file=sys.stderr, flush=True)
+    return {"first_step_s": round(times[0], 3), "step_s": round(float(np.median(times[1:])), 4),
+            "loss": loss, "shapes": len(shapes)}
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--config", default=os.path.join(REPO, "stablelego_jax", "train", "configs", "default.json"))
+    ap.add_argument("--steps", type=int, default=12, help="steps to run (at least 2)")
+    ap.add_argument("--lam", type=float, default=1000.0, help="weight of the stability term")
+    ap.add_argument("--json", action="store_true", help="print one JSON object")
+    a = ap.parse_args(argv)
+    if a.steps < 2:
+        ap.error("--steps must be at least 2")
+    cfg = T.load_config(a.config)
+    out = dict(config=os.path.relpath(a.config, REPO), steps=a.steps, lam=a.lam, **measure(cfg, a.steps, a.lam))
+    out["peak_mb"] = round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, 1)
+    if a.json:
+        print(json.dumps(out))
+    else:
+        print(f"{out['config']}: first step {out['first_step_s']} s (compile included), "
+              f"then {out['step_s']} s a step; peak {out['peak_mb']} MB")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
