@@ -165,7 +165,7 @@ def column_wrenches(pair: np.ndarray, forces: np.ndarray, points: np.ndarray, ce
     or jax.numpy (differentiable in points and centres)."""
     n = len(centre)
     c0 = centre[pair[:, 0]]
-    c1 = xp.where(pair[:, 1:2] < n, centre[np.minimum(pair[:, 1], n - 1)], 0.0)
+    c1 = xp.where(pair[:, 1:2] < n, centre[xp.minimum(pair[:, 1], n - 1)], 0.0)
     w0 = xp.concatenate([forces, xp.cross(points - c0, forces)], axis=1)
     w1 = xp.concatenate([-forces, xp.cross(points - c1, -forces)], axis=1)
     w1 = xp.where(pair[:, 1:2] < n, w1, 0.0)

@@ -10,7 +10,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from stablelego_jax.runtime import cache_dir, float64, x64
+from stablelego_jax.runtime import cache_dir, float64, x64, x64_differentiable
 from stablelego_jax.solvers import compiled as C
 
 ROOT = os.path.abspath(os.path.join(os.path.dirname(__file__), ".."))
@@ -64,6 +64,44 @@ print(json.dumps({{"stable": a.stable, "weakest": a.weakest, "converged": a.conv
     assert (out["stable"], out["weakest"], out["converged"]) == (False, "2", True)
     assert out["grad_dtype"] == "float32" and out["cand"] < 0  # the paper's support helps
     assert out["err"] < 1e-6  # float32 only in the returned numbers
+
+
+def test_x64_differentiable_compiles_once_per_shape():
+    """Eager calls and gradients of a decorated function compile once per
+    argument shape and static option, not on every call; a float argument
+    is traced (a new value compiles nothing), an option is static, and the
+    values and gradients are those of the undecorated function in float64."""
+    seen = []
+
+    def listener(name, secs, **kw):
+        if name == "/jax/core/compile/backend_compile_duration":
+            seen.append(secs)
+
+    jax.monitoring.register_event_duration_secs_listener(listener)
+
+    def f(w, prob, scale=1.0, power=2):
+        w = jnp.asarray(w, jnp.float64)  # as the library's functions cast their inputs
+
+        def body(i, v):  # a loop, as the interior points have
+            return v * 0.5 + prob["a"] * w ** power
+
+        return scale * jax.lax.fori_loop(0, 5, body, w).sum()
+
+    g = x64_differentiable("w")(f)
+    w, prob = np.linspace(0.1, 1.0, 4), {"a": np.arange(4.0)}
+    with float64():
+        want = np.asarray(jax.grad(lambda v: f(v, prob, 0.3))(w))
+        value = float(f(w, prob, 0.3))
+    for scale in (0.3, 0.3, 0.7):
+        assert float(g(w, prob, scale)) == pytest.approx(value * scale / 0.3, rel=1e-12)
+        assert np.allclose(jax.grad(g)(w, prob, scale), want * scale / 0.3, rtol=1e-6)
+    before = len(seen)
+    for scale in (0.3, 0.9):  # compiled already: nothing compiles again
+        g(w, prob, scale)
+        jax.grad(g)(w, prob, scale)
+    assert len(seen) == before
+    g(w, prob, 0.3, power=3)  # a new static option compiles
+    assert len(seen) > before
 
 
 def test_second_process_reuses_the_compiled_solver(tmp_path):
