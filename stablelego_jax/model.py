@@ -81,6 +81,10 @@ class ForceModel:
       column joins bricks of one layer (side presses) or of adjacent layers
       (knob connections), which the interior-point solver's block-tridiagonal
       factorisation uses. None for models built by hand.
+    centre: (n_pad, 3) float64 centre of each brick (m), zeros for padding;
+      the solver plans may number bricks by slabs along x or y instead of
+      by layer (:func:`~stablelego_jax.solvers.problem.slab_levels`). None
+      for models built by hand.
     """
 
     n: int
@@ -94,6 +98,7 @@ class ForceModel:
     brick_mask: np.ndarray
     params: Params
     layer: np.ndarray | None = None
+    centre: np.ndarray | None = None
 
     @property
     def n_pad(self) -> int:
@@ -135,9 +140,13 @@ class ForceModel:
         if self.layer is not None:
             lay = np.full(n_pad, -1, np.int32)
             lay[: self.n_pad] = self.layer
+        cen = None
+        if self.centre is not None:
+            cen = np.zeros((n_pad, 3))
+            cen[: self.n_pad] = self.centre
         return dataclasses.replace(
             self, col_brick=cb.astype(np.int32), col_coef=coef, col_kind=kind, col_mask=mask,
-            group=grp, gravity=grav, brick_mask=bm, layer=lay,
+            group=grp, gravity=grav, brick_mask=bm, layer=lay, centre=cen,
         )
 
 
@@ -263,6 +272,7 @@ def compile_layout(layout: Layout | Scene, params: Params = Params()) -> ForceMo
         brick_mask=np.ones(n, bool),
         params=params,
         layer=np.asarray(pos[:, 2], np.int32),
+        centre=centre,
     )
 
 
@@ -397,5 +407,5 @@ def compile_scene(scene: Scene, params: Params = Params()) -> ForceModel:
     return ForceModel(
         n=n, m=m, col_brick=col_brick, col_coef=coef, col_kind=kind, col_mask=np.ones(m, bool),
         group=normal_groups(col_brick, kind, n), gravity=gravity, brick_mask=np.ones(n, bool), params=params,
-        layer=contact_levels(pair, ground, bottom, n),
+        layer=contact_levels(pair, ground, bottom, n), centre=np.asarray(centre, np.float64),
     )

@@ -1,4 +1,5 @@
 """The problem pytrees, the one size ladder and solve plans (stablelego_jax.solvers.problem)."""
+import dataclasses
 import os
 
 import numpy as np
@@ -6,7 +7,7 @@ import pytest
 
 from conftest import EXAMPLES
 from stablelego_jax.formats.reader import load_layout
-from stablelego_jax.generate.procedural import cuboid, stairs, tower
+from stablelego_jax.generate.procedural import cuboid, pyramid, stairs, tower
 from stablelego_jax.model import KNOB, compile_layout
 from stablelego_jax.soft import candidate_brick, compile_soft
 from stablelego_jax.solvers.problem import (
@@ -19,11 +20,13 @@ from stablelego_jax.solvers.problem import (
     layer_gram,
     layer_plan,
     layered_problem,
+    levels_ok,
     operators,
     pad_soft,
     pad_to_bucket,
     plan_problem,
     rung,
+    slab_levels,
     solve_plan,
     stack_soft,
     to_layered,
@@ -68,6 +71,32 @@ def test_layered_plan_numbers_bricks_layer_by_layer():
     assert solve_plan(compile_layout(tower(3)))[0] == "dense"
     key = solve_plan(compile_layout(stairs(60)))
     assert key[0] == "layered" and key[1] >= 60
+
+
+def test_wide_layouts_are_numbered_by_slabs():
+    """A pyramid's bottom layer holds levels^2 bricks, a vertical slab
+    about half as many: the plan numbers it by slabs (a narrower block),
+    every column and every brick with its supports in one slab or two
+    adjacent ones, bricks in input order for scoring. Narrow layouts keep
+    their layers."""
+    m = compile_layout(pyramid(12))
+    assert layer_plan(m) == (12, 144)
+    lv = slab_levels(m)
+    assert levels_ok(m, lv) and not levels_ok(m, np.arange(m.n) % 3)  # levels 0 and 2 touch
+    assert np.bincount(lv).max() == 78 and len(np.unique(lv)) == 12
+    key = solve_plan(m)
+    assert key == ("slabs",) + layer_bucket(12, 78)
+    fm, prob = plan_problem(m, key, rung(m.m, 64), rung(m.group.shape[1], 4))
+    L, B = key[1:]
+    assert fm.n_pad == m.n and prob.gravity.shape[0] == L * B and prob.upward is not None
+    cb = np.asarray(prob.col_brick)[: m.m]
+    real = (cb < L * B).all(1)
+    assert (np.abs(cb[real, 0] // B - cb[real, 1] // B) <= 1).all()
+    # the same bricks, with their weights, in slab-major order
+    assert np.isclose(np.asarray(prob.gravity)[:, 2].sum(), fm.gravity[:, 2].sum())
+    assert np.asarray(prob.brick_mask).sum() == m.n
+    assert solve_plan(compile_layout(cuboid(7, 7, 6)))[0] == "layered"  # 49 a layer: layers
+    assert slab_levels(dataclasses.replace(m, centre=None)) is None
 
 
 def test_pad_and_stack_soft():

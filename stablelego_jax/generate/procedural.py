@@ -26,6 +26,7 @@ __all__ = [
     "bridge",
     "wall",
     "cuboid",
+    "pyramid",
     "pallet_of_boxes",
     "with_floating",
     "voxel_layout",
@@ -278,6 +279,21 @@ def cuboid(nx: int, ny: int, nz: int) -> Layout:
     z, x, y = np.meshgrid(np.arange(nz), np.arange(nx), np.arange(ny), indexing="ij")
     pos = np.stack([x.ravel(), y.ravel(), z.ravel()], axis=1)
     return brick_layout(pos, np.ones((len(pos), 2), np.int64), source=f"<cuboid {nx}x{ny}x{nz}>")
+
+
+def pyramid(levels: int, lean: tuple[int, int] = (1, 1)) -> Layout:
+    """A stepped pyramid of 2x2 bricks (as LDraw's generated ``pyramidN``
+    models): level ``z`` (from 0) is a square of ``levels - z`` x ``levels - z``
+    bricks, shifted by ``lean`` studs (x, y) per level against the one
+    below, so each brick sits on up to four (2870 bricks at 20 levels). A
+    wide, low layout: its bottom layer holds ``levels^2`` bricks, a vertical
+    slab about half as many."""
+    _check_pos(levels=levels)
+    if not all(0 <= v <= 1 for v in lean):
+        raise ValueError(f"lean must be 0 or 1 stud per level along x and y, got {lean}")
+    pos = [(2 * i + lean[0] * z, 2 * j + lean[1] * z, z)
+           for z in range(levels) for i in range(levels - z) for j in range(levels - z)]
+    return brick_layout(pos, np.full((len(pos), 2), 2, np.int64), source=f"<pyramid {levels}>")
 
 
 def pallet_of_boxes(

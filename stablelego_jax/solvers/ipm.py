@@ -20,7 +20,10 @@ of one layer or of adjacent layers, so with bricks ordered by layer
 (``L`` layers of ``B`` slots, ``n = L B``) M is block tridiagonal with
 (6 B, 6 B) blocks and is factorised by a block Cholesky ``lax.scan`` over
 the layers: ``O(L (6 B)^3)`` instead of ``O((6 n)^3)``. ``L = 1`` is the
-dense case. Iteration counts are 20-50 whatever the layout (no long
+dense case. Wide, low layouts are numbered by vertical slabs instead
+(:func:`~stablelego_jax.solvers.problem.slab_levels`; ``prob.upward``
+set): a brick's supports may then lie in the slab after its own, whose
+terms the assembly adds. Iteration counts are 20-50 whatever the layout (no long
 first-order tails), so a ``vmap``-ed batch finishes together.
 
 Returns the same :class:`~stablelego_jax.solvers.problem.Solution` as the ADMM
@@ -121,23 +124,29 @@ def _system(prob: Problem, params: Params, opts: IPMOptions) -> dict:
     c12 = coef.reshape(m, 12)
     pos12 = gram.pos
     # per-brick rank-one vectors A q_b: slot-0 (owner) part and slot-1 part,
-    # in the owner's layer (S) or the layer below (W)
+    # in the owner's layer (S), the layer below (W) or, with slabs
+    # (prob.upward), the one above (U)
+    upward = prob.upward is not None and L > 1
+    parts = 3 if upward else 2
     ob, lo = cb[:, 0], cb[:, 1]
     lay_o, lay_l = ob // B, lo // B
     up = ob[:, None] * k6 + pos12[:, :6]
     low_same = ob[:, None] * k6 + pos12[:, 6:]
     low_below = n * k6 + ob[:, None] * k6 + pos12[:, 6:]
-    dropsw = 2 * n * k6
+    dropsw = parts * n * k6
     ok_n = ((kind == NORMAL) & cmask)[:, None]
-    low = jnp.where((lo < n)[:, None] & (lay_l == lay_o)[:, None], low_same,
-                    jnp.where((lo < n)[:, None] & (lay_l == lay_o - 1)[:, None], low_below, dropsw))
+    real = (lo < n)[:, None]
+    low_up = 2 * n * k6 + ob[:, None] * k6 + pos12[:, 6:] if upward else dropsw
+    low = jnp.where(real & (lay_l == lay_o)[:, None], low_same,
+                    jnp.where(real & (lay_l == lay_o - 1)[:, None], low_below,
+                              jnp.where(real & (lay_l == lay_o + 1)[:, None], low_up, dropsw)))
     idx_sw = jnp.where(ok_n, jnp.concatenate([up, low], axis=1), dropsw)
 
     def assemble(e, q, rho, dr):
         D, E = gram.blocks(e)
-        sw = jnp.zeros((2 * n * k6,), dtype).at[idx_sw].add(q[:, None] * c12, mode="drop")
+        sw = jnp.zeros((parts * n * k6,), dtype).at[idx_sw].add(q[:, None] * c12, mode="drop")
         S = sw[: n * k6].reshape(L, B, k6)
-        W = sw[n * k6:].reshape(L, B, k6)
+        W = sw[n * k6: 2 * n * k6].reshape(L, B, k6)
         rb_ = rho.reshape(L, B, 1)
         # batched matmuls over layers (a three-operand einsum would materialise (L, B, 6B, 6B))
         D = D + jnp.matmul(jnp.swapaxes(S * rb_, 1, 2), S)
@@ -146,6 +155,12 @@ def _system(prob: Problem, params: Params, opts: IPMOptions) -> dict:
             SW = jnp.matmul(jnp.swapaxes(S * rb_, 1, 2), W)
             D = D.at[:-1].add(WW[1:])
             E = E.at[:-1].add(SW[1:])
+        if upward:  # supports in the level above: block (l + 1, l) gets U' S, D[l + 1] U' U
+            U = sw[2 * n * k6:].reshape(L, B, k6)
+            UU = jnp.matmul(jnp.swapaxes(U * rb_, 1, 2), U)
+            US = jnp.matmul(jnp.swapaxes(U * rb_, 1, 2), S)
+            D = D.at[1:].add(UU[:-1])
+            E = E.at[:-1].add(US[:-1])
         D = D + jax.vmap(jnp.diag)(dr.reshape(L, k6))
         return D, E
 

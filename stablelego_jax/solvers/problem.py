@@ -36,8 +36,11 @@ __all__ = [
     "plan_soft",
     "pair_chunks",
     "CHUNK",
+    "layer_levels",
     "layer_plan",
     "layer_bucket",
+    "slab_levels",
+    "levels_ok",
     "to_layered",
     "layered_problem",
     "chunk_rows",
@@ -63,6 +66,9 @@ class Problem(NamedTuple):
     brick_mask: jnp.ndarray  # (n,) bool
     layers: jnp.ndarray | None = None  # (L,): bricks numbered layer by layer (None: one layer, dense)
     chunks: jnp.ndarray | None = None  # (C, W) int32: columns grouped by brick pair, m = none (pair_chunks)
+    # (0,) marker, only its presence counts: some brick's supports lie in the level above its own
+    # (bricks numbered by slabs, slab_levels); None: in its own level or the one below (layers)
+    upward: jnp.ndarray | None = None
 
 
 class Solution(NamedTuple):
@@ -292,14 +298,27 @@ def plan_soft(prob: SoftProblem) -> SoftProblem:
 # ---------------------------------------------------------------- layering
 
 
+def layer_levels(model: ForceModel) -> np.ndarray:
+    """(n,) layer of each real brick for the layered numbering: the model's
+    ``layer`` where :func:`levels_ok` accepts it with every support in or
+    below its brick's layer, else 0 for all (one layer: a scene's contact
+    levels can put a hanging brick above the one it hangs from; models
+    built by hand have no layers)."""
+    n = model.n
+    if model.layer is None or n == 0:
+        return np.zeros(n, np.int64)
+    z = np.asarray(model.layer[:n], np.int64)
+    z = z - z.min()
+    return z if levels_ok(model, z, upward=False) else np.zeros(n, np.int64)
+
+
 def layer_plan(model: ForceModel) -> tuple[int, int]:
-    """(layers, largest bricks per layer) of a compiled model's real bricks."""
-    if model.layer is None:
-        return 1, model.n
-    z = np.asarray(model.layer[: model.n])
+    """(layers, largest bricks per layer) of a compiled model's real bricks
+    (:func:`layer_levels`)."""
+    z = layer_levels(model)
     if z.size == 0:
         return 1, 1
-    counts = np.bincount(z - z.min())
+    counts = np.bincount(z)
     return int(len(counts)), int(counts.max())
 
 
@@ -313,13 +332,68 @@ def layer_bucket(L: int, B: int) -> tuple[int, int]:
     return up(L, LAYER_RUNGS), up(B, SLOT_RUNGS)
 
 
-def to_layered(model: ForceModel, L: int, B: int) -> ForceModel:
+def levels_ok(model: ForceModel, levels: np.ndarray, upward: bool = True) -> bool:
+    """Whether ``levels`` ((n,) int, one per real brick) can number the
+    bricks of a block-tridiagonal factorisation: every column joins bricks
+    of one level or of two adjacent ones, and so does every brick with the
+    bricks under its NORMAL columns (its largest drag couples them all).
+    ``upward`` False: those bricks must also lie in the brick's own level
+    or the one below (what the plain layered solve assembles)."""
+    n, m = model.n, model.m
+    lv = np.append(np.asarray(levels, np.int64), 0)  # the sink: level of nothing
+    cb = np.minimum(np.asarray(model.col_brick[:m]), n)
+    real = (cb < n).all(1)
+    if real.any() and np.abs(lv[cb[real, 0]] - lv[cb[real, 1]]).max() > 1:
+        return False
+    g = np.asarray(model.group[:n])
+    low = np.append(cb[:, 1], n)[np.minimum(g, m)]  # (n, P) brick under each NORMAL column, n = none
+    own = lv[:n, None]
+    hi = np.where(low < n, lv[low], own).max(1)
+    lo_ = np.where(low < n, lv[low], own).min(1)
+    if not upward and (hi > own[:, 0]).any():
+        return False
+    return bool((np.maximum(hi, own[:, 0]) - np.minimum(lo_, own[:, 0]) <= 1).all())
+
+
+#: Slab widths tried by :func:`slab_levels`, in stud pitches.
+SLAB_WIDTHS = (1, 2, 3, 4, 6, 8, 12, 16)
+
+
+def slab_levels(model: ForceModel) -> np.ndarray | None:
+    """Bricks numbered by vertical slabs instead of layers: (n,) int32 level
+    of each real brick, the slab (along x or y, of the narrowest width of
+    :data:`SLAB_WIDTHS` that :func:`levels_ok` accepts) its centre lies in,
+    empty slabs dropped; of the two axes the one whose block-tridiagonal
+    factorisation is cheaper (padded, :func:`layer_bucket`). A wide, low
+    layout (a pyramid: 20 layers of up to 400 bricks) has far fewer bricks
+    per slab than per layer (210). None without centres or when no width
+    works."""
+    if model.centre is None or model.n == 0:
+        return None
+    c = np.asarray(model.centre[: model.n])
+    best, best_cost = None, np.inf
+    for axis in (0, 1):
+        x = (c[:, axis] - c[:, axis].min()) / model.params.stud
+        for w in SLAB_WIDTHS:
+            lv = np.unique(np.floor(x / w + 1e-9).astype(np.int64), return_inverse=True)[1].ravel()
+            if levels_ok(model, lv):
+                Lp, Bp = layer_bucket(len(np.unique(lv)), int(np.bincount(lv).max()))
+                if Lp * Bp ** 3 < best_cost:
+                    best, best_cost = lv.astype(np.int32), Lp * Bp ** 3
+                break
+    return best
+
+
+def to_layered(model: ForceModel, L: int, B: int, levels: np.ndarray | None = None) -> ForceModel:
     """The model with bricks renumbered layer by layer: brick ``l B + s`` is
     slot ``s`` of layer ``l`` (``n_pad = L B``; empty slots are padding
     bricks). Columns keep their order, so forces solved on the result are
-    forces of ``model`` (same ``m_pad``)."""
+    forces of ``model`` (same ``m_pad``). ``levels`` ((n,) int, default
+    :func:`layer_levels`): number by these levels instead
+    (:func:`slab_levels`); the result's ``layer`` holds them."""
     n = model.n
-    z = np.asarray(model.layer[:n]) - (model.layer[:n].min() if n else 0)
+    src = layer_levels(model) if levels is None else np.asarray(levels)[:n]
+    z = np.asarray(src, np.int64) - (src.min() if n else 0)
     counts = np.bincount(z, minlength=1)
     if len(counts) > L or counts.max(initial=0) > B:
         raise ValueError(f"layout needs {len(counts)} x {counts.max()} layer slots, got {L} x {B}")
@@ -339,8 +413,12 @@ def to_layered(model: ForceModel, L: int, B: int) -> ForceModel:
     bm[new] = True
     lay = np.full(n_new, -1, np.int32)
     lay[new] = z
+    cen = None
+    if model.centre is not None:
+        cen = np.zeros((n_new, 3))
+        cen[new] = model.centre[:n]
     return dataclasses.replace(
-        model, col_brick=cb.astype(np.int32), gravity=grav, group=group, brick_mask=bm, layer=lay
+        model, col_brick=cb.astype(np.int32), gravity=grav, group=group, brick_mask=bm, layer=lay, centre=cen
     )
 
 
@@ -359,31 +437,53 @@ def chunk_rows(model) -> int:
     return len(pair_chunks(model))
 
 
-def layered_problem(model: ForceModel, L: int, c_pad: int | None = None) -> Problem:
+def layered_problem(model: ForceModel, L: int, c_pad: int | None = None, upward: bool = False) -> Problem:
     """Problem arrays of an (already layered, ``n_pad = L B``) model; the
     ``layers`` field (shape (L,)) carries the layer count through jit, and
     ``chunks`` its columns grouped by brick pair (:func:`pair_chunks`),
     padded to ``c_pad`` rows (default: the ladder) for the weighted Gram
-    (:func:`layer_gram`)."""
+    (:func:`layer_gram`). ``upward``: mark that a brick's supports may lie
+    in the level above its own (slabs), which the interior point assembles."""
     prob = to_problem(model)
     chunks = _pad_chunks(pair_chunks(prob), c_pad, prob.col_kind.shape[0])
-    return prob._replace(layers=np.zeros(L, np.int8), chunks=chunks)
+    return prob._replace(layers=np.zeros(L, np.int8), chunks=chunks,
+                         upward=np.zeros(0, np.int8) if upward else None)
 
 
 #: Layouts of at most this many (padded) bricks are always solved dense.
 DENSE_MAX = 48
 
 
+#: Slabs replace layers only when their factorisation costs at most this
+#: fraction of the layers' (they assemble two more products per level).
+SLAB_GAIN = 0.5
+
+
 def solve_plan(model: ForceModel) -> tuple:
-    """Bucket key of ``model``: ("dense", n_pad) or ("layered", L_pad, B_pad),
+    """Bucket key of ``model``: ("dense", n_pad), ("layered", L_pad, B_pad)
+    or ("slabs", L_pad, B_pad) (numbered by :func:`slab_levels`),
     whichever factorises more cheaply (the block-tridiagonal form costs
-    ~3 L (6 B)^3 flops, the dense one (6 n)^3 / 3); layouts of up to
-    ``DENSE_MAX`` bricks stay dense (one small factor beats a scan over layers)."""
+    ~3 L (6 B)^3 flops, the dense one (6 n)^3 / 3; slabs must save
+    ``SLAB_GAIN`` on layers); layouts of up to ``DENSE_MAX`` bricks stay
+    dense (one small factor beats a scan over layers). Layers as
+    :func:`layer_levels` gives them (a scene whose contact levels do not
+    number a block-tridiagonal form has one)."""
     n_b = rung(model.n, MIN_BRICKS)
-    Lp, Bp = layer_bucket(*layer_plan(model))
-    if n_b > DENSE_MAX and Lp > 1 and 3 * Lp * Bp ** 3 < n_b ** 3 / 3:
-        return ("layered", Lp, Bp)
-    return ("dense", n_b)
+    if n_b <= DENSE_MAX:
+        return ("dense", n_b)
+    L, B = layer_plan(model)
+    Lp, Bp = layer_bucket(L, B)
+    best, cost = ("dense", n_b), n_b ** 3 / 9
+    layers = L > 1
+    if layers and Lp * Bp ** 3 < cost:
+        best, cost = ("layered", Lp, Bp), Lp * Bp ** 3
+    if Bp > SLOT_RUNGS[-1] // 2 or not layers:  # slabs cost a second pass over the columns: large layers only
+        lv = slab_levels(model)
+        if lv is not None:
+            Ls, Bs = layer_bucket(len(np.unique(lv)), int(np.bincount(lv).max()))
+            if Ls > 1 and Ls * Bs ** 3 <= (SLAB_GAIN if best[0] == "layered" else 1.0) * cost:
+                best = ("slabs", Ls, Bs)
+    return best
 
 
 #: Seconds one compile of a batched interior-point solver takes on a CPU core
@@ -425,6 +525,8 @@ def _fits(key: tuple, size: tuple) -> bool:
     """Whether a layout of (padded bricks, layers, slots per layer) ``size``
     can be solved in bucket ``key``."""
     n_b, L, B = size
+    if key[0] == "slabs":  # sizes count layers; slab buckets take no other layouts
+        return False
     return n_b <= key[1] if key[0] == "dense" else (L <= key[1] and B <= key[2])
 
 
@@ -490,8 +592,11 @@ def plan_problem(model: ForceModel, key: tuple, m_pad: int, p_pad: int,
     (default: the ladder of its own, :func:`chunk_rows`): the scoring model
     keeps the input brick order; the Problem is numbered layer by layer when
     layered."""
-    if key[0] == "layered":
+    if key[0] in ("layered", "slabs"):
         fm = model.pad(model.n, m_pad, p_pad)
+        if key[0] == "slabs":
+            lv = slab_levels(fm)
+            return fm, layered_problem(to_layered(fm, key[1], key[2], lv), key[1], c_pad, upward=True)
         return fm, layered_problem(to_layered(fm, key[1], key[2]), key[1], c_pad)
     fm = model.pad(key[1], m_pad, p_pad)
     return fm, layered_problem(fm, 1, c_pad)
