@@ -32,3 +32,18 @@ def x64():
     for its own work; the test process, like a user's, runs in float32)."""
     with jax.enable_x64(True):
         yield
+
+
+def hanging_scene(groups: int) -> dict:
+    """A scene (JSON dict) of ``groups`` copies of: a two-brick column, an
+    arm on it rotated 45 degrees, and a 1x1 hanging from the arm's far end
+    over nothing. Contact levels count from the ground, so the hanging
+    brick's level is above the arm it hangs from."""
+    scene = {}
+    for k in range(groups):
+        dx = 12 * k
+        scene[f"base{k}"] = {"x": dx, "y": 0, "z": 0, "brick_id": 2, "ori": 0}
+        scene[f"mid{k}"] = {"x": dx, "y": 0, "z": 1, "brick_id": 2, "ori": 0}
+        scene[f"arm{k}"] = {"center": [dx - 0.974873734, 5.974873734], "yaw": 45.0, "z": 2, "brick_id": 4}
+        scene[f"hang{k}"] = {"center": [dx - 2.742640687, 8.449747468], "yaw": 45.0, "z": 1, "brick_id": 1}
+    return scene

@@ -5,7 +5,7 @@ import os
 import jax
 import numpy as np
 import pytest
-from conftest import EXAMPLES, SHARED_REF, needs_shared
+from conftest import EXAMPLES, SHARED_REF, hanging_scene, needs_shared
 
 from stablelego_jax.analysis import analyze_layout, make_analysis
 from stablelego_jax.formats.reader import load_layout
@@ -103,15 +103,8 @@ def test_scene_with_hanging_bricks_gets_a_plan_that_converges(tmp_path):
     iterations). 13 such groups (52 bodies, past the dense limit) get
     another plan, which converges, without the exact fallback, to HiGHS'
     scores."""
-    scene = {}
-    for k in range(13):
-        dx = 12 * k
-        scene[f"base{k}"] = {"x": dx, "y": 0, "z": 0, "brick_id": 2, "ori": 0}
-        scene[f"mid{k}"] = {"x": dx, "y": 0, "z": 1, "brick_id": 2, "ori": 0}
-        scene[f"arm{k}"] = {"center": [dx - 0.974873734, 5.974873734], "yaw": 45.0, "z": 2, "brick_id": 4}
-        scene[f"hang{k}"] = {"center": [dx - 2.742640687, 8.449747468], "yaw": 45.0, "z": 1, "brick_id": 1}
     path = tmp_path / "hang.json"
-    path.write_text(json.dumps(scene))
+    path.write_text(json.dumps(hanging_scene(13)))
     lay = load_layout(str(path))
     m = compile_layout(lay)
     assert m.n == 52 and not levels_ok(m, m.layer[: m.n])

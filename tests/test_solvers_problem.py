@@ -5,7 +5,9 @@ import os
 import numpy as np
 import pytest
 
-from conftest import EXAMPLES
+import json
+
+from conftest import EXAMPLES, hanging_scene
 from stablelego_jax.formats.reader import load_layout
 from stablelego_jax.generate.procedural import cuboid, pyramid, stairs, tower
 from stablelego_jax.model import KNOB, compile_layout
@@ -27,6 +29,9 @@ from stablelego_jax.solvers.problem import (
     plan_problem,
     rung,
     slab_levels,
+    soft_layer_plan,
+    soft_levels,
+    soft_plan,
     solve_plan,
     stack_soft,
     to_layered,
@@ -97,6 +102,24 @@ def test_wide_layouts_are_numbered_by_slabs():
     assert np.asarray(prob.brick_mask).sum() == m.n
     assert solve_plan(compile_layout(cuboid(7, 7, 6)))[0] == "layered"  # 49 a layer: layers
     assert slab_levels(dataclasses.replace(m, centre=None)) is None
+
+
+def test_contact_levels_that_do_not_layer_a_scene_are_not_used(tmp_path):
+    """A scene's contact levels put a brick hanging from an arm above the
+    arm, whose supports then span three levels: neither the verdict's
+    plan nor the soft problem's numbers by them (one layer instead), while
+    a grid layout's soft problem keeps its layers."""
+    from stablelego_jax.soft import soft_problem
+
+    path = tmp_path / "hang.json"
+    path.write_text(json.dumps(hanging_scene(13)))
+    m = compile_layout(load_layout(str(path)))
+    assert len(np.unique(m.layer[: m.n])) == 4 and not levels_ok(m, m.layer[: m.n])
+    assert layer_plan(m) == (1, 52) and solve_plan(m)[0] != "layered"
+    soft = soft_problem(load_layout(str(path)))
+    assert not soft_levels(soft).any() and soft_layer_plan(soft) == (1, 52) and soft_plan(soft) == ("dense",)
+    grid = soft_problem(cuboid(7, 7, 6))
+    assert soft_layer_plan(grid) == (6, 49) and soft_plan(grid)[0] == "layered"
 
 
 def test_pad_and_stack_soft():

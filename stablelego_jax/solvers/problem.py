@@ -31,6 +31,7 @@ __all__ = [
     "pad_soft",
     "stack_soft",
     "layer_soft",
+    "soft_levels",
     "soft_layer_plan",
     "soft_plan",
     "plan_soft",
@@ -209,12 +210,27 @@ def stack_soft(problems: Sequence[SoftProblem]) -> SoftProblem:
     return SoftProblem(*[None if a[0] is None else np.stack(a) for a in zip(*problems)])
 
 
+def soft_levels(prob: SoftProblem) -> np.ndarray:
+    """(n,) layer of each brick slot for the layered factorisation (padding:
+    0): ``prob.level`` where every column, and every brick with the bricks
+    under it, spans its own layer or the one below (:func:`levels_ok`),
+    else 0 for all (one layer; a scene's contact levels can put a hanging
+    brick above the one it hangs from)."""
+    real = np.asarray(prob.brick_mask)
+    z = np.where(real, np.asarray(prob.level, np.int64), 0)
+    if real.any():
+        z = np.where(real, z - z[real].min(), 0)
+    ok = _spans_ok(prob.col_brick, prob.col_mask, prob.group, z, upward=False)
+    return z if ok else np.zeros(len(z), np.int64)
+
+
 def soft_layer_plan(prob: SoftProblem) -> tuple[int, int]:
-    """(layers, largest bricks per layer) of a soft problem's real bricks."""
-    z = np.asarray(prob.level)[np.asarray(prob.brick_mask)]
+    """(layers, largest bricks per layer) of a soft problem's real bricks
+    (:func:`soft_levels`)."""
+    z = soft_levels(prob)[np.asarray(prob.brick_mask)]
     if z.size == 0:
         return 1, 1
-    counts = np.bincount(z - z.min())
+    counts = np.bincount(z)
     return int(len(counts)), int(counts.max())
 
 
@@ -232,9 +248,9 @@ def layer_soft(prob: SoftProblem, L: int | None = None, B: int | None = None) ->
     if L0 > L or B0 > B:
         raise ValueError(f"problem needs {L0} x {B0} layer slots, got {L} x {B}")
     real = np.asarray(prob.brick_mask)
-    z = np.asarray(prob.level)
+    z = soft_levels(prob)
     idx = np.nonzero(real)[0]
-    zr = z[idx] - (z[idx].min() if len(idx) else 0)
+    zr = z[idx]
     order = np.argsort(zr, kind="stable")
     counts = np.bincount(zr, minlength=1)
     rank = np.empty(len(idx), np.int64)
@@ -340,12 +356,21 @@ def levels_ok(model: ForceModel, levels: np.ndarray, upward: bool = True) -> boo
     ``upward`` False: those bricks must also lie in the brick's own level
     or the one below (what the plain layered solve assembles)."""
     n, m = model.n, model.m
+    return _spans_ok(model.col_brick[:m], np.ones(m, bool), model.group[:n], levels, upward)
+
+
+def _spans_ok(col_brick, col_mask, group, levels, upward: bool) -> bool:
+    """:func:`levels_ok` on arrays: ``levels`` (n,) of bricks ``0..n-1``
+    (``group`` (n, P)); bricks >= n in ``col_brick`` are none, columns
+    outside ``col_mask`` ignored."""
+    n, m = len(levels), len(col_mask)
     lv = np.append(np.asarray(levels, np.int64), 0)  # the sink: level of nothing
-    cb = np.minimum(np.asarray(model.col_brick[:m]), n)
+    cb = np.minimum(np.asarray(col_brick), n)
+    cb = np.where(np.asarray(col_mask)[:, None], cb, n)
     real = (cb < n).all(1)
     if real.any() and np.abs(lv[cb[real, 0]] - lv[cb[real, 1]]).max() > 1:
         return False
-    g = np.asarray(model.group[:n])
+    g = np.asarray(group)
     low = np.append(cb[:, 1], n)[np.minimum(g, m)]  # (n, P) brick under each NORMAL column, n = none
     own = lv[:n, None]
     hi = np.where(low < n, lv[low], own).max(1)
