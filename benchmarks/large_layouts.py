@@ -11,8 +11,9 @@ at N = 20, the brick set of LDraw's generated ``pyramid20.ldr``), ``cubeK``
 runs in its own process (its peak resident memory from ``wait4``), with
 ``--timeout`` seconds:
 
-* ``jax``: the model compiled, its solve plan (``solve_plan``; ``--plan
-  layers`` forces the layer-by-layer numbering, to compare), the solver
+* ``jax``: the model compiled, its solve plan (as ``analyze`` picks it:
+  ``fit_plan(solve_plan)``; ``--plan ladder``: the batch's bucket,
+  ``--plan layers``: layer by layer, to compare), the solver
   compiled (``compile_s``, apart), one solve (``solve_s``);
 * ``exact``: ``analyze_layout(solver="exact")`` as ``stablelego analyze
   --solver exact`` runs it (HiGHS, its canonical stage included).
@@ -58,8 +59,8 @@ def child(case: str, ldr: str | None, solver: str, plan: str) -> dict:
     from stablelego_jax.model import compile_layout
     from stablelego_jax.solvers import ipm
     from stablelego_jax.solvers.compiled import compiled
-    from stablelego_jax.solvers.problem import (MIN_COLUMNS, MIN_SLOTS, layer_bucket, layer_plan, plan_problem,
-                                               rung, solve_plan)
+    from stablelego_jax.solvers.problem import (MIN_COLUMNS, MIN_SLOTS, fit_plan, layer_bucket, layer_plan,
+                                               plan_problem, rung, solve_plan)
 
     lay = load_case(case, ldr)
     row = {"case": case if case != "ldr" else os.path.basename(ldr), "bricks": lay.n, "solver": solver}
@@ -69,8 +70,9 @@ def child(case: str, ldr: str | None, solver: str, plan: str) -> dict:
         row.update(wall_s=time.perf_counter() - t0, converged=a.converged)
     else:
         model = compile_layout(lay)
-        key = solve_plan(model) if plan == "auto" else ("layered",) + layer_bucket(*layer_plan(model))
         m_pad, p_pad = rung(model.m, MIN_COLUMNS), rung(model.group.shape[1], MIN_SLOTS)
+        key = {"auto": lambda: fit_plan(model, solve_plan(model), m_pad), "ladder": lambda: solve_plan(model),
+               "layers": lambda: ("layered",) + layer_bucket(*layer_plan(model))}[plan]()
         fm, prob = plan_problem(model, key, m_pad, p_pad)
         arrays = tuple(x for x in prob if x is not None)
         opts = ipm.IPMOptions()
@@ -122,8 +124,9 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--case", nargs="*", default=["pyramid20"], help="pyramidN, cubeK (default pyramid20)")
     ap.add_argument("--ldr", default=None, help="a layout file to run instead of the cases")
-    ap.add_argument("--plan", choices=("auto", "layers"), default="auto",
-                    help="JAX numbering: the solve plan's (auto) or layer by layer")
+    ap.add_argument("--plan", choices=("auto", "ladder", "layers"), default="auto",
+                    help="JAX plan: as analyze picks it (auto: solve_plan fitted to the layout), the "
+                         "ladder's bucket (ladder: solve_plan) or layer by layer on the ladder (layers)")
     ap.add_argument("--solvers", nargs="*", default=["jax", "exact"], choices=("jax", "exact"))
     ap.add_argument("--timeout", type=float, default=1200.0, help="seconds per solve")
     ap.add_argument("--json", action="store_true", help="print one JSON object per row")

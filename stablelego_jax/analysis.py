@@ -106,19 +106,20 @@ def solve_jax(model: ForceModel, opts=None):
 
     opts: :class:`~stablelego_jax.solvers.ipm.IPMOptions` or None (interior point,
     dense or layer-by-layer as :func:`~stablelego_jax.solvers.problem.solve_plan`
-    chooses) or :class:`~stablelego_jax.solvers.admm.SolverOptions` (ADMM).
+    chooses, fitted to the layout when that saves more than a compile:
+    :func:`~stablelego_jax.solvers.problem.fit_plan`) or :class:`~stablelego_jax.solvers.admm.SolverOptions` (ADMM).
     Returns (Solution of numpy arrays, model the forces belong to: padded,
     bricks in input order)."""
     import jax
 
     from .solvers import admm, ipm
     from .solvers.compiled import compiled
-    from .solvers.problem import MIN_COLUMNS, MIN_SLOTS, Solution, plan_problem, rung, solve_plan
+    from .solvers.problem import MIN_COLUMNS, MIN_SLOTS, Solution, fit_plan, plan_problem, rung, solve_plan
 
     opts = opts or ipm.IPMOptions()
     name = "admm" if isinstance(opts, admm.SolverOptions) else "ipm"
     m_pad, p_pad = rung(model.m, MIN_COLUMNS), rung(model.group.shape[1], MIN_SLOTS)
-    padded, prob = plan_problem(model, solve_plan(model), m_pad, p_pad)
+    padded, prob = plan_problem(model, fit_plan(model, solve_plan(model), m_pad), m_pad, p_pad)
     arrays = tuple(a for a in prob if a is not None)
     exe = compiled(name, solver_fn(model.params, opts), (model.params, opts), arrays)
     return Solution(*jax.device_get(exe(*arrays))), padded

@@ -18,6 +18,7 @@ from stablelego_jax.solvers.problem import (
     batch_rung,
     bucket_shape,
     chunk_rows,
+    fit_plan,
     layer_bucket,
     layer_gram,
     layer_plan,
@@ -102,6 +103,21 @@ def test_wide_layouts_are_numbered_by_slabs():
     assert np.asarray(prob.brick_mask).sum() == m.n
     assert solve_plan(compile_layout(cuboid(7, 7, 6)))[0] == "layered"  # 49 a layer: layers
     assert slab_levels(dataclasses.replace(m, centre=None)) is None
+
+
+def test_one_large_layout_gets_a_plan_fitted_to_it():
+    """A solve of one layout pads to its own size when the ladder's padding
+    would cost more than a compile: the 10^3 unit cube takes 10 layers of
+    104 slots instead of 12 of 128; a small layout keeps its rung."""
+    m = compile_layout(cuboid(10, 10, 10))
+    key = solve_plan(m)
+    assert key == ("layered", 12, 128)
+    fit = fit_plan(m, key, rung(m.m, 64))
+    assert fit == ("layered", 10, 104)
+    fm, prob = plan_problem(m, fit, rung(m.m, 64), rung(m.group.shape[1], 4))
+    assert prob.layers.shape == (10,) and prob.gravity.shape[0] == 1040
+    small = compile_layout(cuboid(4, 4, 4))
+    assert fit_plan(small, solve_plan(small), rung(small.m, 64)) == solve_plan(small)
 
 
 def test_contact_levels_that_do_not_layer_a_scene_are_not_used(tmp_path):

@@ -46,6 +46,7 @@ __all__ = [
     "layered_problem",
     "chunk_rows",
     "solve_plan",
+    "fit_plan",
     "plan_problem",
     "row_scale",
     "operators",
@@ -509,6 +510,30 @@ def solve_plan(model: ForceModel) -> tuple:
             if Ls > 1 and Ls * Bs ** 3 <= (SLAB_GAIN if best[0] == "layered" else 1.0) * cost:
                 best = ("slabs", Ls, Bs)
     return best
+
+
+def fit_plan(model: ForceModel, key: tuple, m_pad: int | None = None) -> tuple:
+    """``key`` (:func:`solve_plan`) fitted to ``model`` alone, for a solve of
+    one layout: its own level count and slots (or bricks) rounded up to a
+    multiple of 8 instead of the ladder's rungs, when the estimated time
+    that saves (:func:`plan_seconds`) exceeds one compile of a single
+    solver (``SINGLE_COMPILE_S``: a shape of its own is not shared with
+    other layouts). A 10^3 unit cube is solved in 10 layers of 104 slots
+    instead of 12 of 128."""
+    if key[0] == "dense":
+        fit = ("dense", -(-model.n // 8) * 8)
+    else:
+        z = slab_levels(model) if key[0] == "slabs" else layer_levels(model)
+        fit = (key[0], len(np.unique(z)), -(-int(np.bincount(z).max()) // 8) * 8)
+    if plan_seconds(key, m_pad) - plan_seconds(fit, m_pad) > SINGLE_COMPILE_S:
+        return fit
+    return key
+
+
+#: Seconds one compile of the (unbatched) interior point takes for a large
+#: layout: 3.7-5.3 s for layered and slab shapes of 650-2870 bricks on this
+#: 2-core CPU (session 25, benchmarks/large_layouts.py).
+SINGLE_COMPILE_S = 4.0
 
 
 #: Seconds one compile of a batched interior-point solver takes on a CPU core
