@@ -15,6 +15,7 @@ from stablelego_jax.soft import candidate_brick, compile_soft
 from stablelego_jax.solvers.problem import (
     CHUNK,
     MIN_CHUNKS,
+    NOT_LAYERED,
     batch_rung,
     bucket_shape,
     chunk_rows,
@@ -131,7 +132,9 @@ def test_contact_levels_that_do_not_layer_a_scene_are_not_used(tmp_path):
     path.write_text(json.dumps(hanging_scene(13)))
     m = compile_layout(load_layout(str(path)))
     assert len(np.unique(m.layer[: m.n])) == 4 and not levels_ok(m, m.layer[: m.n])
-    assert layer_plan(m) == (1, 52) and solve_plan(m)[0] != "layered"
+    assert layer_plan(m) == (NOT_LAYERED, 52) and solve_plan(m)[0] != "layered"
+    with pytest.raises(ValueError, match="no layer-by-layer numbering"):
+        to_layered(m, 4, 64)
     soft = soft_problem(load_layout(str(path)))
     assert not soft_levels(soft).any() and soft_layer_plan(soft) == (1, 52) and soft_plan(soft) == ("dense",)
     grid = soft_problem(cuboid(7, 7, 6))

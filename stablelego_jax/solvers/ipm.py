@@ -142,7 +142,32 @@ def _system(prob: Problem, params: Params, opts: IPMOptions) -> dict:
                               jnp.where(real & (lay_l == lay_o + 1)[:, None], low_up, dropsw)))
     idx_sw = jnp.where(ok_n, jnp.concatenate([up, low], axis=1), dropsw)
 
+    def assemble_below(e, q, rho, dr):
+        """Layers (every support in the layer below: ``layer_levels``): brick
+        b's vector is its owner part o_b (6, at its own slot) and its
+        supports' parts w_b (in the layer below), so o o' is a 6 x 6 block
+        on the diagonal and o w' an outer product (no matmul): only the
+        supports' w' w is a product over the layer."""
+        D, E = gram.blocks(e)
+        o = jnp.zeros((n + 1, 6), dtype).at[jnp.where(ok_n[:, 0], ob, n)].add(q[:, None] * c12[:, :6])[:n]
+        below = ok_n & real & (lay_l == lay_o - 1)[:, None]  # all of them, by layer_levels
+        sw = jnp.zeros((n * k6 + 1,), dtype).at[jnp.where(below, low_below - n * k6, n * k6)].add(
+            q[:, None] * c12[:, 6:], mode="drop")
+        W = sw[: n * k6].reshape(L, B, k6)
+        ro = (rho[:, None] * o).reshape(L, B, 6)
+        # 6 x 6 diagonal blocks rho o o' plus diag(dr), placed on the block diagonal
+        P = ro[..., :, None] * o.reshape(L, B, 1, 6) + jax.vmap(jax.vmap(jnp.diag))(dr.reshape(L, B, 6))
+        D = D + (P[:, :, :, None, :] * jnp.eye(B, dtype=dtype)[None, :, None, :, None]).reshape(L, k6, k6)
+        if L > 1:
+            WW = jnp.matmul(jnp.swapaxes(W * rho.reshape(L, B, 1), 1, 2), W)
+            OW = (ro[..., None] * W[:, :, None, :]).reshape(L, k6, k6)  # rows: owners' slots, columns: below
+            D = D.at[:-1].add(WW[1:])
+            E = E.at[:-1].add(OW[1:])
+        return D, E
+
     def assemble(e, q, rho, dr):
+        if L > 1 and not upward:
+            return assemble_below(e, q, rho, dr)
         D, E = gram.blocks(e)
         sw = jnp.zeros((parts * n * k6,), dtype).at[idx_sw].add(q[:, None] * c12, mode="drop")
         S = sw[: n * k6].reshape(L, B, k6)

@@ -315,24 +315,31 @@ def plan_soft(prob: SoftProblem) -> SoftProblem:
 # ---------------------------------------------------------------- layering
 
 
-def layer_levels(model: ForceModel) -> np.ndarray:
+#: The layer count :func:`layer_plan` gives a model with no layered
+#: numbering: no layered bucket fits it.
+NOT_LAYERED = 1 << 30
+
+
+def layer_levels(model: ForceModel) -> np.ndarray | None:
     """(n,) layer of each real brick for the layered numbering: the model's
-    ``layer`` where :func:`levels_ok` accepts it with every support in or
-    below its brick's layer, else 0 for all (one layer: a scene's contact
-    levels can put a hanging brick above the one it hangs from; models
-    built by hand have no layers)."""
+    ``layer`` where :func:`levels_ok` accepts it with every support in the
+    layer below its brick's; None otherwise (a scene's contact levels can
+    put a hanging brick above the one it hangs from, or a support beside
+    its brick) and for models built by hand (no layers)."""
     n = model.n
-    if model.layer is None or n == 0:
-        return np.zeros(n, np.int64)
+    if model.layer is None:
+        return None
     z = np.asarray(model.layer[:n], np.int64)
-    z = z - z.min()
-    return z if levels_ok(model, z, upward=False) else np.zeros(n, np.int64)
+    z = z - (z.min() if n else 0)
+    return z if levels_ok(model, z, upward="strict") else None
 
 
 def layer_plan(model: ForceModel) -> tuple[int, int]:
     """(layers, largest bricks per layer) of a compiled model's real bricks
-    (:func:`layer_levels`)."""
+    (:func:`layer_levels`); (``NOT_LAYERED``, n) without a layered numbering."""
     z = layer_levels(model)
+    if z is None:
+        return NOT_LAYERED, max(model.n, 1)
     if z.size == 0:
         return 1, 1
     counts = np.bincount(z)
@@ -349,13 +356,14 @@ def layer_bucket(L: int, B: int) -> tuple[int, int]:
     return up(L, LAYER_RUNGS), up(B, SLOT_RUNGS)
 
 
-def levels_ok(model: ForceModel, levels: np.ndarray, upward: bool = True) -> bool:
+def levels_ok(model: ForceModel, levels: np.ndarray, upward: bool | str = True) -> bool:
     """Whether ``levels`` ((n,) int, one per real brick) can number the
     bricks of a block-tridiagonal factorisation: every column joins bricks
     of one level or of two adjacent ones, and so does every brick with the
     bricks under its NORMAL columns (its largest drag couples them all).
     ``upward`` False: those bricks must also lie in the brick's own level
-    or the one below (what the plain layered solve assembles)."""
+    or the one below (what the layered soft factorisation assembles);
+    "strict": in the level below (what the layered verdict solve assembles)."""
     n, m = model.n, model.m
     return _spans_ok(model.col_brick[:m], np.ones(m, bool), model.group[:n], levels, upward)
 
@@ -376,7 +384,10 @@ def _spans_ok(col_brick, col_mask, group, levels, upward: bool) -> bool:
     own = lv[:n, None]
     hi = np.where(low < n, lv[low], own).max(1)
     lo_ = np.where(low < n, lv[low], own).min(1)
-    if not upward and (hi > own[:, 0]).any():
+    if upward == "strict":
+        if (np.where(low < n, lv[low], -1) >= np.where(low < n, own, 0)).any():
+            return False
+    elif not upward and (hi > own[:, 0]).any():
         return False
     return bool((np.maximum(hi, own[:, 0]) - np.minimum(lo_, own[:, 0]) <= 1).all())
 
@@ -419,6 +430,8 @@ def to_layered(model: ForceModel, L: int, B: int, levels: np.ndarray | None = No
     (:func:`slab_levels`); the result's ``layer`` holds them."""
     n = model.n
     src = layer_levels(model) if levels is None else np.asarray(levels)[:n]
+    if src is None:
+        raise ValueError("layout has no layer-by-layer numbering (layer_levels); number it by slab_levels")
     z = np.asarray(src, np.int64) - (src.min() if n else 0)
     counts = np.bincount(z, minlength=1)
     if len(counts) > L or counts.max(initial=0) > B:
@@ -498,9 +511,9 @@ def solve_plan(model: ForceModel) -> tuple:
     if n_b <= DENSE_MAX:
         return ("dense", n_b)
     L, B = layer_plan(model)
-    Lp, Bp = layer_bucket(L, B)
+    layers = 1 < L < NOT_LAYERED
+    Lp, Bp = layer_bucket(L, B) if layers else (1, B)
     best, cost = ("dense", n_b), n_b ** 3 / 9
-    layers = L > 1
     if layers and Lp * Bp ** 3 < cost:
         best, cost = ("layered", Lp, Bp), Lp * Bp ** 3
     if Bp > SLOT_RUNGS[-1] // 2 or not layers:  # slabs cost a second pass over the columns: large layers only
