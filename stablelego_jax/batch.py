@@ -186,7 +186,7 @@ def read_results(out: str, key: str = "file") -> dict:
 def plan_bytes(key: tuple, m_pad: int) -> int:
     """Working memory of one layout in a batch (float64 bytes): the reduced
     matrix blocks, their factors and the per-column assembly buffers."""
-    L, B = (1, key[1]) if key[0] == "dense" else key[1:]
+    L, B = (1, key[1]) if key[0] == "dense" else key[1:3]
     k6 = 6 * B
     # blocks, factors and work copies; per-layer products; the per-column 12 x 12
     # outer products, their scatter indices and the weighted copy of each assembly

@@ -17,7 +17,8 @@ from stablelego_jax.solvers.exact import solve_exact
 from stablelego_jax.layout import brick_layout
 from stablelego_jax.model import NORMAL
 from stablelego_jax.solvers.problem import (layer_bucket, layer_plan, layered_problem, levels_ok, plan_problem, rung,
-                                           slab_levels, solve_plan, stack_problems, to_layered)
+                                           slab_levels, solve_plan, stack_problems, support_count,
+                                           to_layered)
 
 pytestmark = pytest.mark.usefixtures("x64")  # the tests jit the solver themselves
 
@@ -72,9 +73,9 @@ def test_slabs_agree_with_highs():
     """Bricks numbered by vertical slabs (the plan of wide layouts): a
     leaning wall of 2x2 bricks whose every level is shifted one stud along
     x, so the largest drags are active and many bricks sit on bricks of the
-    next slab up. The block-tridiagonal solve assembles those supports
-    (``Problem.upward``) and gives HiGHS' optimum and the dense solve's
-    scores; without them it does not converge."""
+    next slab up. The block-tridiagonal solve assembles each brick's term
+    from its supports (``Problem.supports``) and gives HiGHS' optimum and
+    the dense solve's scores; assembled as layers it does not converge."""
     pos = [(2 * i + z, 2 * j + z % 2, z) for z in range(8) for i in range(3) for j in range(3)]
     lay = brick_layout(pos, [(2, 2)] * len(pos))
     m = compile_layout(lay)
@@ -82,7 +83,8 @@ def test_slabs_agree_with_highs():
     cb = m.col_brick[: m.m]
     sup = (m.col_kind[: m.m] == NORMAL) & (cb[:, 1] < m.n)
     assert (lv[cb[sup, 1]] > lv[cb[sup, 0]]).sum() > 50  # supports in the slab above
-    key = ("slabs",) + layer_bucket(len(np.unique(lv)), int(np.bincount(lv).max()))
+    assert support_count(m) == 4
+    key = ("slabs",) + layer_bucket(len(np.unique(lv)), int(np.bincount(lv).max())) + (4,)
     m_pad, p_pad = rung(m.m, 64), rung(m.group.shape[1], 4)
     fm, prob = plan_problem(m, key, m_pad, p_pad)
     f = jax.jit(ipm.solve)
@@ -92,7 +94,7 @@ def test_slabs_agree_with_highs():
     dense = f(layered_problem(compile_layout(lay).pad(m.n, m_pad, p_pad), 1))
     np.testing.assert_allclose([a.scores[k] for k in lay.keys], [make_analysis(
         lay, fm, np.asarray(dense.f), "jax", True, 0.0).scores[k] for k in lay.keys], atol=1e-8)
-    assert not bool(f(prob._replace(upward=None)).converged)  # the supports above matter
+    assert not bool(f(prob._replace(supports=None, col_slot=None)).converged)  # assembled as layers: wrong
 
 
 def test_scene_with_hanging_bricks_gets_a_plan_that_converges(tmp_path):

@@ -10,7 +10,7 @@ import json
 from conftest import EXAMPLES, hanging_scene
 from stablelego_jax.formats.reader import load_layout
 from stablelego_jax.generate.procedural import cuboid, pyramid, stairs, tower
-from stablelego_jax.model import KNOB, compile_layout
+from stablelego_jax.model import KNOB, NORMAL, compile_layout
 from stablelego_jax.soft import candidate_brick, compile_soft
 from stablelego_jax.solvers.problem import (
     CHUNK,
@@ -92,10 +92,16 @@ def test_wide_layouts_are_numbered_by_slabs():
     assert levels_ok(m, lv) and not levels_ok(m, np.arange(m.n) % 3)  # levels 0 and 2 touch
     assert np.bincount(lv).max() == 78 and len(np.unique(lv)) == 12
     key = solve_plan(m)
-    assert key == ("slabs",) + layer_bucket(12, 78)
+    assert key == ("slabs",) + layer_bucket(12, 78) + (4,)  # each brick on up to 4
     fm, prob = plan_problem(m, key, rung(m.m, 64), rung(m.group.shape[1], 4))
-    L, B = key[1:]
-    assert fm.n_pad == m.n and prob.gravity.shape[0] == L * B and prob.upward is not None
+    L, B = key[1:3]
+    assert fm.n_pad == m.n and prob.gravity.shape[0] == L * B and prob.supports.shape == (L * B, 4)
+    # each NORMAL column's lower brick sits in its owner's support slots, once
+    sup, slot, cbp = np.asarray(prob.supports), np.asarray(prob.col_slot), np.asarray(prob.col_brick)
+    nor = (np.asarray(prob.col_kind) == NORMAL) & np.asarray(prob.col_mask) & (cbp[:, 1] < L * B)
+    assert (sup[cbp[nor, 0], slot[nor]] == cbp[nor, 1]).all() and (slot[~nor] == 4).all()
+    real = sup < L * B
+    assert all(len(set(r[k])) == k.sum() for r, k in zip(sup, real))
     cb = np.asarray(prob.col_brick)[: m.m]
     real = (cb < L * B).all(1)
     assert (np.abs(cb[real, 0] // B - cb[real, 1] // B) <= 1).all()

@@ -21,9 +21,9 @@ of one layer or of adjacent layers, so with bricks ordered by layer
 (6 B, 6 B) blocks and is factorised by a block Cholesky ``lax.scan`` over
 the layers: ``O(L (6 B)^3)`` instead of ``O((6 n)^3)``. ``L = 1`` is the
 dense case. Wide, low layouts are numbered by vertical slabs instead
-(:func:`~stablelego_jax.solvers.problem.slab_levels`; ``prob.upward``
-set): a brick's supports may then lie in the slab after its own, whose
-terms the assembly adds. Iteration counts are 20-50 whatever the layout (no long
+(:func:`~stablelego_jax.solvers.problem.slab_levels`; ``prob.supports``
+set): a brick's supports may then lie in its own slab or either next one,
+and its rank-one term is assembled brick by brick from its supports. Iteration counts are 20-50 whatever the layout (no long
 first-order tails), so a ``vmap``-ed batch finishes together.
 
 Returns the same :class:`~stablelego_jax.solvers.problem.Solution` as the ADMM
@@ -122,72 +122,73 @@ def _system(prob: Problem, params: Params, opts: IPMOptions) -> dict:
     # --- static scatter plan for assembling the blocks of M
     cb = prob.col_brick
     c12 = coef.reshape(m, 12)
-    pos12 = gram.pos
-    # per-brick rank-one vectors A q_b: slot-0 (owner) part and slot-1 part,
-    # in the owner's layer (S), the layer below (W) or, with slabs
-    # (prob.upward), the one above (U)
-    upward = prob.upward is not None and L > 1
-    parts = 3 if upward else 2
+    # per-brick rank-one vectors A q_b: each brick's own part (slot 0 of its
+    # NORMAL columns) and its supports' parts (slot 1). Three assemblies:
+    # one dense block (L = 1), layers (supports in the layer below) and
+    # slabs (prob.supports: supports in any level next to the brick's)
     ob, lo = cb[:, 0], cb[:, 1]
     lay_o, lay_l = ob // B, lo // B
-    up = ob[:, None] * k6 + pos12[:, :6]
-    low_same = ob[:, None] * k6 + pos12[:, 6:]
-    low_below = n * k6 + ob[:, None] * k6 + pos12[:, 6:]
-    dropsw = parts * n * k6
     ok_n = ((kind == NORMAL) & cmask)[:, None]
     real = (lo < n)[:, None]
-    low_up = 2 * n * k6 + ob[:, None] * k6 + pos12[:, 6:] if upward else dropsw
-    low = jnp.where(real & (lay_l == lay_o)[:, None], low_same,
-                    jnp.where(real & (lay_l == lay_o - 1)[:, None], low_below,
-                              jnp.where(real & (lay_l == lay_o + 1)[:, None], low_up, dropsw)))
-    idx_sw = jnp.where(ok_n, jnp.concatenate([up, low], axis=1), dropsw)
+    own_idx = jnp.where(ok_n[:, 0], ob, n)
+
+    def own_parts(q):
+        """(n, 6) each brick's own part of its rank-one vector."""
+        return jnp.zeros((n + 1, 6), dtype).at[own_idx].add(q[:, None] * c12[:, :6])[:n]
+
+    if prob.supports is not None:
+        K = prob.supports.shape[1]
+        K6 = 6 * (K + 1)
+        # entries (n, K6) of brick b's compact vector [own part; K supports' parts]: their rows in [D; E]
+        vb = jnp.repeat(jnp.concatenate([jnp.arange(n, dtype=prob.supports.dtype)[:, None], prob.supports], 1), 6, 1)
+        vpos = 6 * (vb % B) + jnp.tile(jnp.arange(6), K + 1)[None, :]
+        vl = vb // B
+        lr, lc = vl[:, :, None], vl[:, None, :]
+        ok = (vb[:, :, None] < n) & (vb[:, None, :] < n)
+        cell = vpos[:, :, None] * k6 + vpos[:, None, :]
+        sup_idx = jnp.where(ok & (lr == lc), lr * k6 * k6 + cell,
+                            jnp.where(ok & (lr == lc + 1), (L + lc) * k6 * k6 + cell, 2 * L * k6 * k6))
+        slot_idx = jnp.where(ok_n[:, 0] & real[:, 0] & (prob.col_slot < K), ob * K + prob.col_slot, n * K)
+
+    def assemble_slabs(e, q, rho, dr):
+        """Slabs: each brick's rank-one term from its compact vector, one
+        (K6, K6) piece a brick placed with the columns' pieces."""
+        v = jnp.zeros((n * K + 1, 6), dtype).at[slot_idx].add(q[:, None] * c12[:, 6:])[: n * K]
+        vec = jnp.concatenate([own_parts(q), v.reshape(n, 6 * K)], axis=1)  # (n, K6)
+        piece = (rho[:, None] * vec)[:, :, None] * vec[:, None, :]
+        D, E = gram.blocks(e, extra=(sup_idx, piece))
+        return D + jax.vmap(jnp.diag)(dr.reshape(L, k6)), E
 
     def assemble_below(e, q, rho, dr):
         """Layers (every support in the layer below: ``layer_levels``): brick
-        b's vector is its owner part o_b (6, at its own slot) and its
+        b's vector is its own part o_b (6, at its own slot) and its
         supports' parts w_b (in the layer below), so o o' is a 6 x 6 block
         on the diagonal and o w' an outer product (no matmul): only the
         supports' w' w is a product over the layer."""
         D, E = gram.blocks(e)
-        o = jnp.zeros((n + 1, 6), dtype).at[jnp.where(ok_n[:, 0], ob, n)].add(q[:, None] * c12[:, :6])[:n]
+        o = own_parts(q)
         below = ok_n & real & (lay_l == lay_o - 1)[:, None]  # all of them, by layer_levels
-        sw = jnp.zeros((n * k6 + 1,), dtype).at[jnp.where(below, low_below - n * k6, n * k6)].add(
-            q[:, None] * c12[:, 6:], mode="drop")
-        W = sw[: n * k6].reshape(L, B, k6)
+        idx = jnp.where(below, ob[:, None] * k6 + gram.pos[:, 6:], n * k6)
+        W = jnp.zeros((n * k6 + 1,), dtype).at[idx].add(q[:, None] * c12[:, 6:])[: n * k6].reshape(L, B, k6)
         ro = (rho[:, None] * o).reshape(L, B, 6)
         # 6 x 6 diagonal blocks rho o o' plus diag(dr), placed on the block diagonal
         P = ro[..., :, None] * o.reshape(L, B, 1, 6) + jax.vmap(jax.vmap(jnp.diag))(dr.reshape(L, B, 6))
         D = D + (P[:, :, :, None, :] * jnp.eye(B, dtype=dtype)[None, :, None, :, None]).reshape(L, k6, k6)
-        if L > 1:
-            WW = jnp.matmul(jnp.swapaxes(W * rho.reshape(L, B, 1), 1, 2), W)
-            OW = (ro[..., None] * W[:, :, None, :]).reshape(L, k6, k6)  # rows: owners' slots, columns: below
-            D = D.at[:-1].add(WW[1:])
-            E = E.at[:-1].add(OW[1:])
-        return D, E
+        WW = jnp.matmul(jnp.swapaxes(W * rho.reshape(L, B, 1), 1, 2), W)
+        OW = (ro[..., None] * W[:, :, None, :]).reshape(L, k6, k6)  # rows: owners' slots, columns: below
+        return D.at[:-1].add(WW[1:]), E.at[:-1].add(OW[1:])
 
-    def assemble(e, q, rho, dr):
-        if L > 1 and not upward:
-            return assemble_below(e, q, rho, dr)
+    def assemble_dense(e, q, rho, dr):
+        """One block: S (n, 6n) the bricks' vectors, S' diag(rho) S."""
         D, E = gram.blocks(e)
-        sw = jnp.zeros((parts * n * k6,), dtype).at[idx_sw].add(q[:, None] * c12, mode="drop")
-        S = sw[: n * k6].reshape(L, B, k6)
-        W = sw[n * k6: 2 * n * k6].reshape(L, B, k6)
-        rb_ = rho.reshape(L, B, 1)
-        # batched matmuls over layers (a three-operand einsum would materialise (L, B, 6B, 6B))
-        D = D + jnp.matmul(jnp.swapaxes(S * rb_, 1, 2), S)
-        if L > 1:
-            WW = jnp.matmul(jnp.swapaxes(W * rb_, 1, 2), W)
-            SW = jnp.matmul(jnp.swapaxes(S * rb_, 1, 2), W)
-            D = D.at[:-1].add(WW[1:])
-            E = E.at[:-1].add(SW[1:])
-        if upward:  # supports in the level above: block (l + 1, l) gets U' S, D[l + 1] U' U
-            U = sw[2 * n * k6:].reshape(L, B, k6)
-            UU = jnp.matmul(jnp.swapaxes(U * rb_, 1, 2), U)
-            US = jnp.matmul(jnp.swapaxes(U * rb_, 1, 2), S)
-            D = D.at[1:].add(UU[:-1])
-            E = E.at[:-1].add(US[:-1])
-        D = D + jax.vmap(jnp.diag)(dr.reshape(L, k6))
-        return D, E
+        idx = jnp.where(ok_n, jnp.concatenate([ob[:, None] * k6 + gram.pos[:, :6],
+                                               jnp.where(real, ob[:, None] * k6 + gram.pos[:, 6:], n * k6)], 1),
+                        n * k6)
+        S = jnp.zeros((n * k6 + 1,), dtype).at[idx].add(q[:, None] * c12)[: n * k6].reshape(1, n, k6)
+        D = D + jnp.matmul(jnp.swapaxes(S * rho.reshape(1, n, 1), 1, 2), S)
+        return D + jax.vmap(jnp.diag)(dr.reshape(L, k6)), E
+
+    assemble = assemble_slabs if prob.supports is not None else assemble_below if L > 1 else assemble_dense
 
     def G(z):
         x, Dv, t, rp, rm = z

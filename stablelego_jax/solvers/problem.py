@@ -12,7 +12,7 @@ from typing import NamedTuple, Sequence
 import jax.numpy as jnp
 import numpy as np
 
-from ..model import KNOB, SIDE, ForceModel, Params
+from ..model import KNOB, NORMAL, SIDE, ForceModel, Params
 from ..soft import SoftProblem
 
 __all__ = [
@@ -42,6 +42,8 @@ __all__ = [
     "layer_bucket",
     "slab_levels",
     "levels_ok",
+    "support_count",
+    "support_table",
     "to_layered",
     "layered_problem",
     "chunk_rows",
@@ -68,9 +70,10 @@ class Problem(NamedTuple):
     brick_mask: jnp.ndarray  # (n,) bool
     layers: jnp.ndarray | None = None  # (L,): bricks numbered layer by layer (None: one layer, dense)
     chunks: jnp.ndarray | None = None  # (C, W) int32: columns grouped by brick pair, m = none (pair_chunks)
-    # (0,) marker, only its presence counts: some brick's supports lie in the level above its own
-    # (bricks numbered by slabs, slab_levels); None: in its own level or the one below (layers)
-    upward: jnp.ndarray | None = None
+    # bricks numbered by slabs (slab_levels; None: by layers or dense): each brick's supports, the
+    # bricks under its NORMAL columns, in any level next to its own (support_table)
+    supports: jnp.ndarray | None = None  # (n, K) int32 brick of each support slot, n = none
+    col_slot: jnp.ndarray | None = None  # (m,) int32 support slot of each column's lower brick, K = none
 
 
 class Solution(NamedTuple):
@@ -476,17 +479,58 @@ def chunk_rows(model) -> int:
     return len(pair_chunks(model))
 
 
-def layered_problem(model: ForceModel, L: int, c_pad: int | None = None, upward: bool = False) -> Problem:
+def support_count(model: ForceModel) -> int:
+    """Most distinct real bricks under one brick's NORMAL columns (at least 1)."""
+    n, m = model.n, model.m
+    g = np.asarray(model.group[:n])
+    low = np.sort(np.append(np.minimum(np.asarray(model.col_brick[:m, 1]), n), n)[np.minimum(g, m)], axis=1)
+    new = np.concatenate([np.ones((n, 1), bool), low[:, 1:] != low[:, :-1]], axis=1) & (low < n)
+    return max(int(new.sum(1).max(initial=0)), 1)
+
+
+def support_table(model: ForceModel, K: int) -> tuple[np.ndarray, np.ndarray]:
+    """(supports (n_pad, K) int32: the distinct real bricks under each
+    brick's NORMAL columns, ``n_pad`` = none; col_slot (m_pad,) int32: the
+    slot of each NORMAL column's lower brick in its owner's row, ``K`` for
+    other columns and for the baseplate). ValueError if a brick has more
+    than ``K``."""
+    N, M = model.n_pad, model.m_pad
+    cb = np.minimum(np.asarray(model.col_brick), N)
+    normal = (np.asarray(model.col_kind) == NORMAL) & np.asarray(model.col_mask) & (cb[:, 1] < N) & (cb[:, 0] < N)
+    cols = np.nonzero(normal)[0]
+    pairs, inv = np.unique(cb[cols], axis=0, return_inverse=True)
+    inv = inv.ravel()
+    owner = pairs[:, 0]
+    first = np.concatenate([[True], owner[1:] != owner[:-1]])
+    rank = np.arange(len(pairs)) - np.maximum.accumulate(np.where(first, np.arange(len(pairs)), 0))
+    if len(pairs) and rank.max() >= K:
+        raise ValueError(f"a brick has {rank.max() + 1} supports, more than {K} slots")
+    supports = np.full((N, K), N, np.int32)
+    supports[owner, rank] = pairs[:, 1]
+    col_slot = np.full(M, K, np.int32)
+    col_slot[cols] = rank[inv]
+    return supports, col_slot
+
+
+def layered_problem(model: ForceModel, L: int, c_pad: int | None = None, supports: int | None = None) -> Problem:
     """Problem arrays of an (already layered, ``n_pad = L B``) model; the
     ``layers`` field (shape (L,)) carries the layer count through jit, and
     ``chunks`` its columns grouped by brick pair (:func:`pair_chunks`),
     padded to ``c_pad`` rows (default: the ladder) for the weighted Gram
-    (:func:`layer_gram`). ``upward``: mark that a brick's supports may lie
-    in the level above its own (slabs), which the interior point assembles."""
+    (:func:`layer_gram`). ``supports`` = K: numbered by slabs, with each
+    brick's supports in K slots (:func:`support_table`), which the interior
+    point assembles brick by brick."""
     prob = to_problem(model)
     chunks = _pad_chunks(pair_chunks(prob), c_pad, prob.col_kind.shape[0])
-    return prob._replace(layers=np.zeros(L, np.int8), chunks=chunks,
-                         upward=np.zeros(0, np.int8) if upward else None)
+    prob = prob._replace(layers=np.zeros(L, np.int8), chunks=chunks)
+    if supports is None:
+        return prob
+    sup, slot = support_table(model, supports)
+    return prob._replace(supports=sup, col_slot=slot)
+
+
+#: Support slots per brick of slab problems: padded to these rungs.
+SUPPORT_RUNGS = (4, 8, 16, 32, 64)
 
 
 #: Layouts of at most this many (padded) bricks are always solved dense.
@@ -500,7 +544,8 @@ SLAB_GAIN = 0.5
 
 def solve_plan(model: ForceModel) -> tuple:
     """Bucket key of ``model``: ("dense", n_pad), ("layered", L_pad, B_pad)
-    or ("slabs", L_pad, B_pad) (numbered by :func:`slab_levels`),
+    or ("slabs", L_pad, B_pad, K_pad) (numbered by :func:`slab_levels`,
+    K_pad support slots per brick: :data:`SUPPORT_RUNGS`),
     whichever factorises more cheaply (the block-tridiagonal form costs
     ~3 L (6 B)^3 flops, the dense one (6 n)^3 / 3; slabs must save
     ``SLAB_GAIN`` on layers); layouts of up to ``DENSE_MAX`` bricks stay
@@ -521,7 +566,8 @@ def solve_plan(model: ForceModel) -> tuple:
         if lv is not None:
             Ls, Bs = layer_bucket(len(np.unique(lv)), int(np.bincount(lv).max()))
             if Ls > 1 and Ls * Bs ** 3 <= (SLAB_GAIN if best[0] == "layered" else 1.0) * cost:
-                best = ("slabs", Ls, Bs)
+                k = support_count(model)
+                best = ("slabs", Ls, Bs, next((r for r in SUPPORT_RUNGS if r >= k), -(-k // 16) * 16))
     return best
 
 
@@ -537,7 +583,7 @@ def fit_plan(model: ForceModel, key: tuple, m_pad: int | None = None) -> tuple:
         fit = ("dense", -(-model.n // 8) * 8)
     else:
         z = slab_levels(model) if key[0] == "slabs" else layer_levels(model)
-        fit = (key[0], len(np.unique(z)), -(-int(np.bincount(z).max()) // 8) * 8)
+        fit = (key[0], len(np.unique(z)), -(-int(np.bincount(z).max()) // 8) * 8) + key[3:]
     if plan_seconds(key, m_pad) - plan_seconds(fit, m_pad) > SINGLE_COMPILE_S:
         return fit
     return key
@@ -659,7 +705,7 @@ def plan_problem(model: ForceModel, key: tuple, m_pad: int, p_pad: int,
         fm = model.pad(model.n, m_pad, p_pad)
         if key[0] == "slabs":
             lv = slab_levels(fm)
-            return fm, layered_problem(to_layered(fm, key[1], key[2], lv), key[1], c_pad, upward=True)
+            return fm, layered_problem(to_layered(fm, key[1], key[2], lv), key[1], c_pad, supports=key[3])
         return fm, layered_problem(to_layered(fm, key[1], key[2]), key[1], c_pad)
     fm = model.pad(key[1], m_pad, p_pad)
     return fm, layered_problem(fm, 1, c_pad)
@@ -722,9 +768,11 @@ class LayerGram(NamedTuple):
     coef: jnp.ndarray  # (R, W, 12) coefficients of each piece's columns (W = 1 without chunks)
     rows: jnp.ndarray | None  # (R, W) the piece's columns, m = none (None: piece r = column r)
 
-    def blocks(self, e):
+    def blocks(self, e, extra=None):
         """(D, E), each (L, k, k): the diagonal blocks and the blocks below
-        them (``E[l]`` = block (l + 1, l)) of ``A diag(e) A'``; ``e``: (m,)."""
+        them (``E[l]`` = block (l + 1, l)) of ``A diag(e) A'``; ``e``: (m,).
+        ``extra`` (idx, values) of one shape: more entries added in the
+        same scatter (flat indices into [D; E], past the end = none)."""
         L, k = self.L, self.k
         if self.rows is None:
             piece = e[:, None, None] * (self.coef[:, 0, :, None] * self.coef[:, 0, None, :])
@@ -732,7 +780,11 @@ class LayerGram(NamedTuple):
             ew = jnp.concatenate([e, jnp.zeros((1,), e.dtype)])[self.rows]  # (R, W)
             piece = jnp.einsum("rwi,rwj->rij", self.coef * ew[..., None], self.coef)
         buf = jnp.zeros((2 * L * k * k,), e.dtype)
-        buf = buf.at[self.idx].add(piece, mode="drop")
+        if extra is None:
+            buf = buf.at[self.idx].add(piece, mode="drop")
+        else:
+            idx = jnp.concatenate([self.idx.reshape(-1), extra[0].reshape(-1)])
+            buf = buf.at[idx].add(jnp.concatenate([piece.reshape(-1), extra[1].reshape(-1)]), mode="drop")
         return buf[: L * k * k].reshape(L, k, k), buf[L * k * k:].reshape(L, k, k)
 
 
