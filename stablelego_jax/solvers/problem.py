@@ -371,7 +371,7 @@ def levels_ok(model: ForceModel, levels: np.ndarray, upward: bool | str = True) 
     return _spans_ok(model.col_brick[:m], np.ones(m, bool), model.group[:n], levels, upward)
 
 
-def _spans_ok(col_brick, col_mask, group, levels, upward: bool) -> bool:
+def _spans_ok(col_brick, col_mask, group, levels, upward: bool | str) -> bool:
     """:func:`levels_ok` on arrays: ``levels`` (n,) of bricks ``0..n-1``
     (``group`` (n, P)); bricks >= n in ``col_brick`` are none, columns
     outside ``col_mask`` ignored."""
