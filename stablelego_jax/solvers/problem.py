@@ -224,7 +224,7 @@ def soft_levels(prob: SoftProblem) -> np.ndarray:
     z = np.where(real, np.asarray(prob.level, np.int64), 0)
     if real.any():
         z = np.where(real, z - z[real].min(), 0)
-    ok = _spans_ok(prob.col_brick, prob.col_mask, prob.group, z, upward=False)
+    ok = _spans_ok(prob.col_brick, prob.col_mask, prob.group, z, supports="at or below")
     return z if ok else np.zeros(len(z), np.int64)
 
 
@@ -334,7 +334,7 @@ def layer_levels(model: ForceModel) -> np.ndarray | None:
         return None
     z = np.asarray(model.layer[:n], np.int64)
     z = z - (z.min() if n else 0)
-    return z if levels_ok(model, z, upward="strict") else None
+    return z if levels_ok(model, z, supports="below") else None
 
 
 def layer_plan(model: ForceModel) -> tuple[int, int]:
@@ -359,19 +359,20 @@ def layer_bucket(L: int, B: int) -> tuple[int, int]:
     return up(L, LAYER_RUNGS), up(B, SLOT_RUNGS)
 
 
-def levels_ok(model: ForceModel, levels: np.ndarray, upward: bool | str = True) -> bool:
+def levels_ok(model: ForceModel, levels: np.ndarray, supports: str = "adjacent") -> bool:
     """Whether ``levels`` ((n,) int, one per real brick) can number the
     bricks of a block-tridiagonal factorisation: every column joins bricks
-    of one level or of two adjacent ones, and so does every brick with the
-    bricks under its NORMAL columns (its largest drag couples them all).
-    ``upward`` False: those bricks must also lie in the brick's own level
-    or the one below (what the layered soft factorisation assembles);
-    "strict": in the level below (what the layered verdict solve assembles)."""
+    of one level or of two adjacent ones, and so does every brick with its
+    supports, the bricks under its NORMAL columns (its largest drag couples
+    them all). ``supports``: where a brick's supports may lie, "adjacent"
+    (its own level or either next one: slabs), "at or below" (its own or
+    the one below: what the layered soft factorisation assembles) or
+    "below" (the one below: what the layered verdict solve assembles)."""
     n, m = model.n, model.m
-    return _spans_ok(model.col_brick[:m], np.ones(m, bool), model.group[:n], levels, upward)
+    return _spans_ok(model.col_brick[:m], np.ones(m, bool), model.group[:n], levels, supports)
 
 
-def _spans_ok(col_brick, col_mask, group, levels, upward: bool | str) -> bool:
+def _spans_ok(col_brick, col_mask, group, levels, supports: str) -> bool:
     """:func:`levels_ok` on arrays: ``levels`` (n,) of bricks ``0..n-1``
     (``group`` (n, P)); bricks >= n in ``col_brick`` are none, columns
     outside ``col_mask`` ignored."""
@@ -387,10 +388,11 @@ def _spans_ok(col_brick, col_mask, group, levels, upward: bool | str) -> bool:
     own = lv[:n, None]
     hi = np.where(low < n, lv[low], own).max(1)
     lo_ = np.where(low < n, lv[low], own).min(1)
-    if upward == "strict":
-        if (np.where(low < n, lv[low], -1) >= np.where(low < n, own, 0)).any():
-            return False
-    elif not upward and (hi > own[:, 0]).any():
+    if supports not in ("adjacent", "at or below", "below"):
+        raise ValueError(f"unknown supports rule {supports!r}")
+    if supports == "below" and (np.where(low < n, lv[low], -1) >= np.where(low < n, own, 0)).any():
+        return False
+    if supports == "at or below" and (hi > own[:, 0]).any():
         return False
     return bool((np.maximum(hi, own[:, 0]) - np.minimum(lo_, own[:, 0]) <= 1).all())
 
@@ -479,13 +481,24 @@ def chunk_rows(model) -> int:
     return len(pair_chunks(model))
 
 
+def _support_pairs(model: ForceModel):
+    """(cols, pairs, inv, rank): the NORMAL columns between two real bricks,
+    their distinct (brick, support) pairs sorted by brick, each column's
+    pair, and each pair's rank among its brick's supports."""
+    N = model.n_pad
+    cb = np.minimum(np.asarray(model.col_brick), N)
+    normal = (np.asarray(model.col_kind) == NORMAL) & np.asarray(model.col_mask) & (cb[:, 1] < N) & (cb[:, 0] < N)
+    cols = np.nonzero(normal)[0]
+    pairs, inv = np.unique(cb[cols].reshape(-1, 2), axis=0, return_inverse=True)
+    first = np.concatenate([[True], pairs[1:, 0] != pairs[:-1, 0]])
+    rank = np.arange(len(pairs)) - np.maximum.accumulate(np.where(first, np.arange(len(pairs)), 0))
+    return cols, pairs, inv.ravel(), rank
+
+
 def support_count(model: ForceModel) -> int:
     """Most distinct real bricks under one brick's NORMAL columns (at least 1)."""
-    n, m = model.n, model.m
-    g = np.asarray(model.group[:n])
-    low = np.sort(np.append(np.minimum(np.asarray(model.col_brick[:m, 1]), n), n)[np.minimum(g, m)], axis=1)
-    new = np.concatenate([np.ones((n, 1), bool), low[:, 1:] != low[:, :-1]], axis=1) & (low < n)
-    return max(int(new.sum(1).max(initial=0)), 1)
+    rank = _support_pairs(model)[3]
+    return int(rank.max()) + 1 if len(rank) else 1
 
 
 def support_table(model: ForceModel, K: int) -> tuple[np.ndarray, np.ndarray]:
@@ -495,14 +508,8 @@ def support_table(model: ForceModel, K: int) -> tuple[np.ndarray, np.ndarray]:
     other columns and for the baseplate). ValueError if a brick has more
     than ``K``."""
     N, M = model.n_pad, model.m_pad
-    cb = np.minimum(np.asarray(model.col_brick), N)
-    normal = (np.asarray(model.col_kind) == NORMAL) & np.asarray(model.col_mask) & (cb[:, 1] < N) & (cb[:, 0] < N)
-    cols = np.nonzero(normal)[0]
-    pairs, inv = np.unique(cb[cols], axis=0, return_inverse=True)
-    inv = inv.ravel()
+    cols, pairs, inv, rank = _support_pairs(model)
     owner = pairs[:, 0]
-    first = np.concatenate([[True], owner[1:] != owner[:-1]])
-    rank = np.arange(len(pairs)) - np.maximum.accumulate(np.where(first, np.arange(len(pairs)), 0))
     if len(pairs) and rank.max() >= K:
         raise ValueError(f"a brick has {rank.max() + 1} supports, more than {K} slots")
     supports = np.full((N, K), N, np.int32)
@@ -538,7 +545,7 @@ DENSE_MAX = 48
 
 
 #: Slabs replace layers only when their factorisation costs at most this
-#: fraction of the layers' (they assemble two more products per level).
+#: fraction of the layers' (their per-brick assembly scatters K^2 pieces).
 SLAB_GAIN = 0.5
 
 
@@ -561,7 +568,7 @@ def solve_plan(model: ForceModel) -> tuple:
     best, cost = ("dense", n_b), n_b ** 3 / 9
     if layers and Lp * Bp ** 3 < cost:
         best, cost = ("layered", Lp, Bp), Lp * Bp ** 3
-    if Bp > SLOT_RUNGS[-1] // 2 or not layers:  # slabs cost a second pass over the columns: large layers only
+    if Bp > SLOT_RUNGS[-1] // 2 or not layers:  # slab_levels is host work: only for large layers
         lv = slab_levels(model)
         if lv is not None:
             Ls, Bs = layer_bucket(len(np.unique(lv)), int(np.bincount(lv).max()))
