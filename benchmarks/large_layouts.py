@@ -1,13 +1,16 @@
 """Large single layouts: JAX against the exact solver, one layout a process.
 
     python benchmarks/large_layouts.py [--case pyramid20 ...] [--ldr FILE]
-                                       [--plan auto|layers] [--solvers jax exact]
+                                       [--plan auto|layers] [--solvers jax exact vertex]
                                        [--timeout 1200] [--json]
 
 Cases: ``pyramidN`` (the stepped pyramid of 2x2 bricks of
 :func:`~stablelego_jax.generate.procedural.pyramid`, N levels: 2870 bricks
 at N = 20, the brick set of LDraw's generated ``pyramid20.ldr``), ``cubeK``
-(K x K x K unit bricks), or ``--ldr FILE`` (any layout file). Each solver
+(K x K x K unit bricks), ``solidK`` (a full K x K x K box of cells merged
+into bricks by :func:`~stablelego_jax.generate.voxels.merge_voxels`, the
+interlocked shapes of mesh datasets: 700 bricks at K = 20), or ``--ldr
+FILE`` (any layout file). Each solver
 runs in its own process (its peak resident memory from ``wait4``), with
 ``--timeout`` seconds:
 
@@ -16,7 +19,9 @@ runs in its own process (its peak resident memory from ``wait4``), with
   ``--plan layers``: layer by layer, to compare), the solver
   compiled (``compile_s``, apart), one solve (``solve_s``);
 * ``exact``: ``analyze_layout(solver="exact")`` as ``stablelego analyze
-  --solver exact`` runs it (HiGHS, its canonical stage included).
+  --solver exact`` runs it (HiGHS, its canonical stage included);
+* ``vertex``: HiGHS' optimal vertex alone (no canonical stage: the plain
+  LP, as ``cores.py``'s ``vertex-2``).
 
 Prints one JSON object per case and solver (``--json``) or a table, and
 appends the rows to ``benchmarks/results/large_layouts.jsonl``; labels and
@@ -48,7 +53,14 @@ def load_case(case: str, ldr: str | None):
     if case.startswith("cube"):
         k = int(case[4:])
         return cuboid(k, k, k)
-    raise SystemExit(f"large_layouts.py: unknown case {case!r} (pyramidN, cubeK or --ldr FILE)")
+    if case.startswith("solid"):
+        import numpy as np
+
+        from stablelego_jax.generate.voxels import merge_voxels
+
+        k = int(case[5:])
+        return merge_voxels(np.ones((k, k, k), bool), source=case)
+    raise SystemExit(f"large_layouts.py: unknown case {case!r} (pyramidN, cubeK, solidK or --ldr FILE)")
 
 
 def child(case: str, ldr: str | None, solver: str, plan: str) -> dict:
@@ -65,8 +77,10 @@ def child(case: str, ldr: str | None, solver: str, plan: str) -> dict:
     lay = load_case(case, ldr)
     row = {"case": case if case != "ldr" else os.path.basename(ldr), "bricks": lay.n, "solver": solver}
     t0 = time.perf_counter()
-    if solver == "exact":
-        a = analyze_layout(lay, solver="exact")
+    if solver in ("exact", "vertex"):
+        from stablelego_jax.model import Params
+
+        a = analyze_layout(lay, solver="exact", params=Params() if solver == "exact" else Params(ridge=0.0))
         row.update(wall_s=time.perf_counter() - t0, converged=a.converged)
     else:
         model = compile_layout(lay)
@@ -122,12 +136,12 @@ def run(case: str, ldr: str | None, solver: str, plan: str, timeout: float) -> d
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--case", nargs="*", default=["pyramid20"], help="pyramidN, cubeK (default pyramid20)")
+    ap.add_argument("--case", nargs="*", default=["pyramid20"], help="pyramidN, cubeK (K^3 unit bricks), solidK (a full K^3 box merged into bricks) (default pyramid20)")
     ap.add_argument("--ldr", default=None, help="a layout file to run instead of the cases")
     ap.add_argument("--plan", choices=("auto", "ladder", "layers"), default="auto",
                     help="JAX plan: as analyze picks it (auto: solve_plan fitted to the layout), the "
                          "ladder's bucket (ladder: solve_plan) or layer by layer on the ladder (layers)")
-    ap.add_argument("--solvers", nargs="*", default=["jax", "exact"], choices=("jax", "exact"))
+    ap.add_argument("--solvers", nargs="*", default=["jax", "exact"], choices=("jax", "exact", "vertex"))
     ap.add_argument("--timeout", type=float, default=1200.0, help="seconds per solve")
     ap.add_argument("--json", action="store_true", help="print one JSON object per row")
     ap.add_argument("--child", nargs=3, help=argparse.SUPPRESS)

@@ -16,6 +16,12 @@ Usage: python benchmarks/loss_layered.py [--n-fd 12] [--n-verdict 60]
   the largest or below 1e-8 compared in absolute terms), 6 components of
   weights and 6 of loads per layout.
 
+``--dump FILE.npz``: also write every loss, score and gradient (dense and
+layered) to FILE; ``--compare OLD.npz NEW.npz``: the largest differences
+between two such files (two versions of the code, run one after the other
+from their checkouts): losses (relative), scores and gradients (absolute),
+labels.
+
 ``--control``: only the dense solver against itself with the bricks
 numbered in reverse, on the 8 structures (how far rounding alone moves the
 loss and gradient), written next to ``--out`` as ``*_control.json``.
@@ -52,6 +58,9 @@ REPORT = jax.jit(lambda w, loads, prob, tau: soft_report(w, loads, prob, tau, op
 VG = jax.jit(jax.value_and_grad(lambda w, loads, prob: stability_loss(w, loads, prob, opts=OPTS), argnums=(0, 1)))
 
 
+DUMP = {}  # --dump: name|what -> array
+
+
 def LOSS(w, loads, prob):
     return VG(w, loads, prob)[0]
 
@@ -77,7 +86,9 @@ def verdict_case(name, lay):
         rd, rl = REPORT(w, z, dense, tau), REPORT(w, z, layered, tau)
         ld, ll = float(np.sum(rd.brick_loss)), float(np.sum(rl.brick_loss))
         out[f"loss_rel_diff_tau{tau:g}"] = abs(ll - ld) / max(abs(ld), 1e-300)
+        DUMP[f"{name}|loss_tau{tau:g}"] = np.array([ld, ll])
     sd, sl = np.asarray(rd.scores)[: lay.n], np.asarray(rl.scores)[: lay.n]
+    DUMP[f"{name}|scores"] = np.stack([sd, sl])
     ex = analyze_layout(lay, solver="exact")
     failing = np.array([ex.scores[k] >= 1.0 for k in lay.keys])
     out.update(converged=bool(rl.converged), max_score_diff=float(np.abs(sd - sl).max()),
@@ -100,6 +111,8 @@ def fd_case(name, lay, rng):
     gd = [np.asarray(v) for v in GRAD(w, loads, dense)]
     gl_ = [np.asarray(v) for v in GRAD(w, loads, layered)]
     ld, ll = float(LOSS(w, loads, dense)), float(LOSS(w, loads, layered))
+    DUMP[f"{name}|fd_loss"] = np.array([ld, ll])
+    DUMP[f"{name}|fd_grad"] = np.stack([np.concatenate(gd), np.concatenate(gl_)])
     out = {"name": name, "n_bricks": n, "loss_rel_diff": abs(ll - ld) / max(abs(ld), 1e-300),
            "grad_max_abs_diff": float(max(np.abs(a - b).max() for a, b in zip(gd, gl_)))}
     worst = 0.0
@@ -150,7 +163,12 @@ def main():
     ap.add_argument("--out", default=os.path.join(os.path.dirname(__file__), "results", "loss_layered.json"))
     ap.add_argument("--control", action="store_true",
                     help="only the control: dense vs dense with reversed brick numbering on the 8 structures")
+    ap.add_argument("--dump", default=None, help="also write every loss, score and gradient to this .npz")
+    ap.add_argument("--compare", nargs=2, default=None, metavar=("OLD", "NEW"),
+                    help="compare two --dump files and exit")
     a = ap.parse_args()
+    if a.compare:
+        return compare(*a.compare)
     t0 = time.time()
     if a.control:
         rows = [control_case(f, load_layout(os.path.join(lg.REF, f))) for f in sorted(os.listdir(lg.REF))
@@ -184,7 +202,32 @@ def main():
         "time_s": round(time.time() - t0, 1),
     }
     atomic_write_text(a.out, json.dumps({"summary": summary, "fd": fd, "verdict": ver}, indent=1) + "\n")
+    if a.dump:
+        np.savez(a.dump, **DUMP)
     print(json.dumps(summary, indent=1))
+
+
+def compare(old: str, new: str) -> None:
+    """Largest differences between two ``--dump`` files (dense and layered
+    solves alike)."""
+    A, B = np.load(old), np.load(new)
+    keys = sorted(set(A.files) & set(B.files))
+    loss = [k for k in keys if "loss" in k]
+    rel = {k: float(np.max(np.abs(A[k] - B[k]) / np.maximum(np.abs(A[k]), 1e-300))) for k in loss}
+    big = {k: v for k, v in rel.items() if v > 1e-8}
+    scores = [k for k in keys if k.endswith("|scores")]
+    grads = [k for k in keys if k.endswith("|fd_grad")]
+    out = {
+        "keys": len(keys), "only_in_one": len(set(A.files) ^ set(B.files)),
+        "loss_max_rel_diff": max(rel.values()),
+        "losses_over_1e-8_rel": {k: [float(A[k][0]), float(B[k][0]), v] for k, v in sorted(big.items())},
+        "score_max_abs_diff": max(float(np.abs(A[k] - B[k]).max()) for k in scores),
+        "labels_changed": sum(int(((A[k] >= 1) != (B[k] >= 1)).any()) for k in scores),
+        "verdicts_changed": sum(int(((A[k] < 1).all(axis=1) != (B[k] < 1).all(axis=1)).any()) for k in scores),
+        "grad_max_abs_diff": max(float(np.abs(A[k] - B[k]).max()) for k in grads),
+        "grad_scale": max(float(np.abs(A[k]).max()) for k in grads),
+    }
+    print(json.dumps(out, indent=1))
 
 
 if __name__ == "__main__":

@@ -50,7 +50,7 @@ import platform
 import sys
 import time
 
-# one BLAS thread: the differentiable solver's small dense LUs are ~100x
+# one BLAS thread: the differentiable solver's small dense factorisations are ~100x
 # slower with OpenBLAS' spinning threads on a busy machine (set before numpy loads)
 for _v in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS"):
     os.environ.setdefault(_v, "1")

@@ -6,7 +6,7 @@ bundled OpenBLAS. Its worker threads spin while they wait, and on a busy
 machine they fight the other processes for the cores: a batch of the
 interior-point solver took 83.4 s instead of 10.8 s next to two busy
 processes on the 2-core box (``benchmarks/blas_threads.py``, BENCHMARKS.md);
-the small dense LUs of the differentiable loss suffer the same way. On the
+the small factorisations of the differentiable loss suffer the same way. On the
 quiet machine one thread was faster too (5.5 s against 8.1 s). :func:`one_blas_thread`
 sets the count to 1 for a block and restores it after; without SciPy's
 OpenBLAS (another build) it does nothing.

@@ -1,4 +1,4 @@
-"""One BLAS thread for the dense LU factorisations of the differentiable solver.
+"""One BLAS thread for the dense factorisations of the differentiable solver.
 
 JAX's CPU LAPACK calls go through SciPy's bundled OpenBLAS; on a busy 2-core
 machine its worker threads spin and a 224 x 224 LU takes ~80 ms instead of

@@ -40,7 +40,8 @@ import jax.numpy as jnp
 from ..model import NORMAL, SIDE, Params
 from ..runtime import x64
 from .blocks import block_cholesky, block_solve
-from .problem import Problem, Solution, layer_gram, make_solution, operators
+from .newton import reduced_matrix
+from .problem import Problem, Solution, make_solution, operators
 
 __all__ = ["IPMOptions", "solve"]
 
@@ -99,8 +100,8 @@ def _system(prob: Problem, params: Params, opts: IPMOptions) -> dict:
     prob = prob._replace(col_coef=prob.col_coef.astype(dtype), gravity=prob.gravity.astype(dtype))
     A, At, coef, g, w = operators(prob, params)
     n, m = g.shape[0], prob.col_kind.shape[0]
-    gram = layer_gram(prob, coef)  # the column part of M, block tridiagonal over the layers
-    L, B, k6 = gram.L, gram.B, gram.k
+    L = 1 if prob.layers is None else prob.layers.shape[0]
+    k6 = 6 * (n // L)
     w = jnp.where(prob.brick_mask[:, None], w, 1.0)  # padding rows: r = 0 at unit cost
     kind, cmask = prob.col_kind, prob.col_mask
     act_n = ((kind == NORMAL) & cmask).astype(dtype)
@@ -120,76 +121,9 @@ def _system(prob: Problem, params: Params, opts: IPMOptions) -> dict:
     # the canonical term on the forces: ridge / (total weight, in T) (see Params)
     reg = params.ridge / jnp.maximum(jnp.abs(g[:, 2]).sum(), 1e-30)
 
-    # --- static scatter plan for assembling the blocks of M
-    cb = prob.col_brick
-    c12 = coef.reshape(m, 12)
-    # per-brick rank-one vectors A q_b: each brick's own part (slot 0 of its
-    # NORMAL columns) and its supports' parts (slot 1). Three assemblies:
-    # one dense block (L = 1), layers (supports in the layer below) and
-    # slabs (prob.supports: supports in any level next to the brick's)
-    ob, lo = cb[:, 0], cb[:, 1]
-    lay_o, lay_l = ob // B, lo // B
-    ok_n = ((kind == NORMAL) & cmask)[:, None]
-    real = (lo < n)[:, None]
-    own_idx = jnp.where(ok_n[:, 0], ob, n)
-
-    def own_parts(q):
-        """(n, 6) each brick's own part of its rank-one vector."""
-        return jnp.zeros((n + 1, 6), dtype).at[own_idx].add(q[:, None] * c12[:, :6])[:n]
-
-    if prob.supports is not None:
-        K = prob.supports.shape[1]
-        K6 = 6 * (K + 1)
-        # entries (n, K6) of brick b's compact vector [own part; K supports' parts]: their rows in [D; E]
-        vb = jnp.repeat(jnp.concatenate([jnp.arange(n, dtype=prob.supports.dtype)[:, None], prob.supports], 1), 6, 1)
-        vpos = 6 * (vb % B) + jnp.tile(jnp.arange(6), K + 1)[None, :]
-        vl = vb // B
-        lr, lc = vl[:, :, None], vl[:, None, :]
-        ok = (vb[:, :, None] < n) & (vb[:, None, :] < n)
-        cell = vpos[:, :, None] * k6 + vpos[:, None, :]
-        sup_idx = jnp.where(ok & (lr == lc), lr * k6 * k6 + cell,
-                            jnp.where(ok & (lr == lc + 1), (L + lc) * k6 * k6 + cell, 2 * L * k6 * k6))
-        slot_idx = jnp.where(ok_n[:, 0] & real[:, 0] & (prob.col_slot < K), ob * K + prob.col_slot, n * K)
-
-    def assemble_slabs(e, q, rho, dr):
-        """Slabs: each brick's rank-one term from its compact vector, one
-        (K6, K6) piece a brick placed with the columns' pieces."""
-        v = jnp.zeros((n * K + 1, 6), dtype).at[slot_idx].add(q[:, None] * c12[:, 6:])[: n * K]
-        vec = jnp.concatenate([own_parts(q), v.reshape(n, 6 * K)], axis=1)  # (n, K6)
-        piece = (rho[:, None] * vec)[:, :, None] * vec[:, None, :]
-        D, E = gram.blocks(e, extra=(sup_idx, piece))
-        return D + jax.vmap(jnp.diag)(dr.reshape(L, k6)), E
-
-    def assemble_below(e, q, rho, dr):
-        """Layers (every support in the layer below: ``layer_levels``): brick
-        b's vector is its own part o_b (6, at its own slot) and its
-        supports' parts w_b (in the layer below), so o o' is a 6 x 6 block
-        on the diagonal and o w' an outer product (no matmul): only the
-        supports' w' w is a product over the layer."""
-        D, E = gram.blocks(e)
-        o = own_parts(q)
-        below = ok_n & real & (lay_l == lay_o - 1)[:, None]  # all of them, by layer_levels
-        idx = jnp.where(below, ob[:, None] * k6 + gram.pos[:, 6:], n * k6)
-        W = jnp.zeros((n * k6 + 1,), dtype).at[idx].add(q[:, None] * c12[:, 6:])[: n * k6].reshape(L, B, k6)
-        ro = (rho[:, None] * o).reshape(L, B, 6)
-        # 6 x 6 diagonal blocks rho o o' plus diag(dr), placed on the block diagonal
-        P = ro[..., :, None] * o.reshape(L, B, 1, 6) + jax.vmap(jax.vmap(jnp.diag))(dr.reshape(L, B, 6))
-        D = D + (P[:, :, :, None, :] * jnp.eye(B, dtype=dtype)[None, :, None, :, None]).reshape(L, k6, k6)
-        WW = jnp.matmul(jnp.swapaxes(W * rho.reshape(L, B, 1), 1, 2), W)
-        OW = (ro[..., None] * W[:, :, None, :]).reshape(L, k6, k6)  # rows: owners' slots, columns: below
-        return D.at[:-1].add(WW[1:]), E.at[:-1].add(OW[1:])
-
-    def assemble_dense(e, q, rho, dr):
-        """One block: S (n, 6n) the bricks' vectors, S' diag(rho) S."""
-        D, E = gram.blocks(e)
-        idx = jnp.where(ok_n, jnp.concatenate([ob[:, None] * k6 + gram.pos[:, :6],
-                                               jnp.where(real, ob[:, None] * k6 + gram.pos[:, 6:], n * k6)], 1),
-                        n * k6)
-        S = jnp.zeros((n * k6 + 1,), dtype).at[idx].add(q[:, None] * c12)[: n * k6].reshape(1, n, k6)
-        D = D + jnp.matmul(jnp.swapaxes(S * rho.reshape(1, n, 1), 1, 2), S)
-        return D + jax.vmap(jnp.diag)(dr.reshape(L, k6)), E
-
-    assemble = assemble_slabs if prob.supports is not None else assemble_below if L > 1 else assemble_dense
+    # the blocks of M for any weights (static scatter plan; :mod:`.newton`)
+    assemble = reduced_matrix(prob.col_brick, coef, (kind == NORMAL) & cmask, n, L, prob.chunks,
+                              prob.supports, prob.col_slot)
 
     def G(z):
         x, Dv, t, rp, rm = z

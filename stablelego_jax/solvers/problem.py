@@ -54,6 +54,7 @@ __all__ = [
     "operators",
     "LayerGram",
     "layer_gram",
+    "gram_plan",
     "make_solution",
 ]
 
@@ -224,7 +225,7 @@ def soft_levels(prob: SoftProblem) -> np.ndarray:
     z = np.where(real, np.asarray(prob.level, np.int64), 0)
     if real.any():
         z = np.where(real, z - z[real].min(), 0)
-    ok = _spans_ok(prob.col_brick, prob.col_mask, prob.group, z, supports="at or below")
+    ok = _spans_ok(prob.col_brick, prob.col_mask, prob.group, z, supports="below")
     return z if ok else np.zeros(len(z), np.int64)
 
 
@@ -295,13 +296,12 @@ def pair_chunks(prob, width: int = CHUNK) -> np.ndarray:
 
 def soft_plan(prob: SoftProblem) -> tuple:
     """("dense",) or ("layered", L, B) for a soft problem, whichever
-    factorises more cheaply (the rule of :func:`solve_plan`: the layered
-    factorisation costs ~3 L (6 B)^3 (block LU: about twice a block
-    Cholesky), the dense one (7 n)^3 / 3); at most ``DENSE_MAX`` bricks
-    stay dense."""
+    factorises more cheaply (the rule of :func:`solve_plan`, the same block
+    Cholesky: the layered factorisation costs ~3 L (6 B)^3, the dense one
+    (6 n)^3 / 3); at most ``DENSE_MAX`` bricks stay dense."""
     n = int(np.asarray(prob.brick_mask).sum())
     Lp, Bp = layer_bucket(*soft_layer_plan(prob))
-    if n > DENSE_MAX and Lp > 1 and 6 * Lp * Bp ** 3 < (7 / 6) ** 3 * n ** 3 / 3:
+    if n > DENSE_MAX and Lp > 1 and Lp * Bp ** 3 < n ** 3 / 9:
         return ("layered", Lp, Bp)
     return ("dense",)
 
@@ -797,23 +797,33 @@ class LayerGram(NamedTuple):
 
 def layer_gram(prob: Problem, coef) -> LayerGram:
     """The :class:`LayerGram` of ``prob`` (``coef``: (m, 2, 6) scaled
-    coefficients from :func:`operators`). Every column joins bricks of one
-    layer or of two adjacent layers; coefficients of padding bricks (the
-    sink) are dropped. Grouped by ``prob.chunks`` when it has them."""
-    n, m = prob.gravity.shape[0], prob.col_brick.shape[0]
+    coefficients from :func:`operators`): :func:`gram_plan` of its columns,
+    layers and chunks."""
     L = 1 if prob.layers is None else prob.layers.shape[0]
+    return gram_plan(prob.col_brick, coef, prob.gravity.shape[0], L, prob.chunks)
+
+
+def gram_plan(col_brick, coef, n: int, L: int, chunks=None) -> LayerGram:
+    """The :class:`LayerGram` of columns joining brick slots ``col_brick``
+    ((m, 2) int, ``0..n-1``; ``n`` or more: none, e.g. the baseplate or
+    padding) with coefficients ``coef`` (m, 2, 6); ``n = L B`` slots, slot s
+    in layer ``s // B``. Every column joins slots of one layer or of two
+    adjacent layers; coefficients of no slot are dropped. ``chunks`` (R, W):
+    columns grouped by the pair of slots they join (``m``: none), or None."""
+    m = col_brick.shape[0]
+    col_brick = jnp.minimum(jnp.asarray(col_brick), n)
     B = n // L
     k = 6 * B
     comp = jnp.tile(jnp.arange(6), 2)[None, :]
-    b12 = jnp.repeat(prob.col_brick, 6, axis=1)  # (m, 12) brick of each coefficient
+    b12 = jnp.repeat(col_brick, 6, axis=1)  # (m, 12) brick of each coefficient
     pos = 6 * (b12 % B) + comp
     c12 = coef.reshape(m, 12)
-    if prob.chunks is None:
+    if chunks is None:
         rows, rb12, rcoef = None, b12, c12[:, None, :]
     else:
-        rows = prob.chunks
+        rows = jnp.asarray(chunks)
         # a chunk's columns join one pair of bricks: those of its first column (none: the sink)
-        cb = jnp.concatenate([prob.col_brick, jnp.full((1, 2), n, prob.col_brick.dtype)])[rows[:, 0]]
+        cb = jnp.concatenate([col_brick, jnp.full((1, 2), n, col_brick.dtype)])[rows[:, 0]]
         rb12 = jnp.repeat(cb, 6, axis=1)
         rcoef = jnp.concatenate([c12, jnp.zeros((1, 12), c12.dtype)])[rows]  # (R, W, 12)
     rlay, rpos = rb12 // B, 6 * (rb12 % B) + comp

@@ -7,14 +7,14 @@ the problem, its units and what its gradient means). It is solved by an
 infeasible primal-dual interior-point method (Mehrotra predictor-corrector;
 at most ``iters`` iterations of a ``while_loop`` that stops once the
 iterate is centred at ``mu``) in which each Newton system is reduced, per
-column and in closed form, to the changes of the residual rows' prices and
-of the bricks' drag maxima, and factorised either densely (one LU of a
-(7 n x 7 n) system, n bricks) or, for a problem placed layer by layer
-(:func:`~stablelego_jax.solvers.problem.layer_soft`), with the drag maxima
-eliminated too and the remaining (6 n x 6 n) matrix factorised as a block
-tridiagonal one (:func:`~stablelego_jax.solvers.blocks.block_lu`):
-``O(L (6 B)^3)`` for L layers of B slots instead of ``O((7 n)^3)``. Both
-give the same iterates to rounding. The optimality conditions are written per unit of
+column and in closed form, to the changes of the residual rows' prices
+(the bricks' drag maxima eliminated too). The matrix that remains, scaled
+by the bricks' weights, is the symmetric positive definite reduced matrix
+of the verdict LP (:mod:`~stablelego_jax.solvers.newton`), factorised by
+the same block Cholesky (:mod:`~stablelego_jax.solvers.blocks`): one
+dense (6 n x 6 n) block, or, for a problem placed layer by layer
+(:func:`~stablelego_jax.solvers.problem.layer_soft`), a block-tridiagonal
+one, ``O(L (6 B)^3)`` for L layers of B slots instead of ``O((6 n)^3)``. The optimality conditions are written per unit of
 existence (divided by the weights), which keeps them regular at ``w = 0``.
 
 :func:`central_path` has a custom VJP (implicit differentiation): one
@@ -37,7 +37,8 @@ import jax.numpy as jnp
 from ..model import KNOB, NORMAL, Params
 from ..runtime import x64
 from ..soft import SoftProblem
-from .blocks import block_lu, block_lu_solve
+from .blocks import block_cholesky, block_solve
+from .newton import reduced_matrix
 
 __all__ = [
     "BarrierOptions",
@@ -99,6 +100,9 @@ class SoftContext(NamedTuple):
     slot: jnp.ndarray | None = None  # (n,) place l B + s in the layered factorisation (None: dense)
     lay: jnp.ndarray | None = None  # (L, B): the layered factorisation's shape
     chunk: jnp.ndarray | None = None  # (C, W) columns grouped by brick pair (m: none)
+    ws: jnp.ndarray | None = None  # (n,) row scale of each brick (its weight, >= 1e-30; 1 for padding)
+    csym: jnp.ndarray | None = None  # (m,) column scale c_p: A~ = diag(1/ws) A diag(c)
+    osym: jnp.ndarray | None = None  # (m,) o0 from the row scales (o0 where no weight is clamped)
 
 
 def soft_context(weights, loads, prob: SoftProblem, params: Params) -> SoftContext:
@@ -126,11 +130,17 @@ def soft_context(weights, loads, prob: SoftProblem, params: Params) -> SoftConte
     kind = jnp.asarray(prob.col_kind)
     normal = (kind == NORMAL) & real
     knob = (kind == KNOB) & real
+    # the symmetric form of the Newton matrix (see _factor): row scales ws,
+    # A~ = diag(1/ws) A diag(csym) exactly while no weight is below 1e-30
+    ws = jnp.where(jnp.asarray(prob.brick_mask), jnp.maximum(om, 1e-30), 1.0)
+    ws_ext = jnp.concatenate([ws, jnp.ones((1,), dtype)])
+    osym = jnp.where(same, 1.0, ws_ext[b1])
     return SoftContext(coef=coef, coef_t=coef_t, cb=cb, g=g, om=om, o0=o0, wcol=jnp.where(real, w0 * o0, 0.0),
                 real=real, pair=normal | knob, normal=normal, knob=knob, owner=jnp.where(normal, b0, n),
                 group=jnp.asarray(prob.group), cost=cost,
                 slot=None if prob.slot is None else jnp.asarray(prob.slot), lay=prob.layers,
-                chunk=None if prob.chunk is None else jnp.asarray(prob.chunk))
+                chunk=None if prob.chunk is None else jnp.asarray(prob.chunk),
+                ws=ws, csym=ws_ext[b0] * osym, osym=osym)
 
 
 def _apply(coef, cb, x, n):
@@ -258,29 +268,62 @@ def _system(x, ctx: SoftContext, dpsi, ddpsi, zeta, h, opts: BarrierOptions):
 #
 # Unknowns of a Newton system: per column (S_p, D_p) (diagonal blocks), per
 # brick t_b, and y = diag(ddpsi) A~ dphi (the change of the residual rows'
-# prices). S and D are eliminated per column in closed form, which leaves a
-# system in (y, t):
+# prices). S and D are eliminated per column in closed form, and t per
+# brick (its curvature ktt = h3 + sum g f / hD, written without
+# cancellation, is diagonal), which leaves a (6 n) system in y:
 #
-#     [ diag(1/ddpsi) + A~ diag(theta) A^T    -A~ diag(f / hD) P ] [y]
-#     [ P^T diag(g / hD) A                      diag(ktt)         ] [t]
+#     M = diag(1/ddpsi) + A~ diag(theta) A^T + sum_b u_b v_b^T / ktt_b
 #
-# (P: column -> owner brick of NORMAL columns; theta = 1/hS + [pair]/hD;
-# ktt = h3 + sum g f / hD written without cancellation). The transpose
-# swaps f and g and A and A~. Dense: one LU of the (7 n) system. Layered
-# (``ctx.slot``): t is eliminated too (ktt is diagonal), which adds one
-# rank-one term per brick on its own layer and the one below, and the
-# (6 n) matrix in y is block tridiagonal over the layers
-# (:func:`~stablelego_jax.solvers.blocks.block_lu`).
+# (theta = 1/hS + [pair]/hD; u_b = A~ f/hD and v_b = A g/hD over brick b's
+# NORMAL columns; the transpose swaps f and g and A and A~). M is not
+# symmetric when weights are below 1: A~ (the conditions per unit of
+# existence) weighs each column's wrench on a brick by the other brick's
+# weight. But A~ = diag(1/w) A diag(c) with c_p = w_b0 w_b1 (w within one
+# unit) and g = o f, so W M (W: each brick's 6 rows times its weight) is
+#
+#     W M = W diag(1/ddpsi) + A diag(c theta) A^T + sum_b (w_b / ktt_b) v_b v_b^T
+#
+# with v_b = A (o f / hD) over b's NORMAL columns: symmetric positive
+# definite, the form of the verdict LP's reduced matrix
+# (:func:`~stablelego_jax.solvers.newton.reduced_matrix`), factorised by
+# the same block Cholesky (one dense block, or block tridiagonal over the
+# layers of ``ctx.slot``). M y = r is (W M) y = W r and M^T y = r is
+# y = W (W M)^-1 r: one factorisation for both. Weights are taken as at
+# least 1e-30 in W (a brick of weight 0 then perturbs M by 1e-30 relative).
 
 
 class _Lin(NamedTuple):
-    """A factorised Newton matrix (or its transpose)."""
+    """A factorised Newton matrix: the block Cholesky factors of W M."""
 
     pc: _Pieces
-    lu: object  # dense: LU of the (7 n) system in (y, t); layered: a BlockLU of the (6 n) one in y
-    piv: jnp.ndarray | None  # dense: row pivots
+    C: jnp.ndarray  # (L, 6 B, 6 B) Cholesky factors of the pivot blocks
+    G: jnp.ndarray  # (L, 6 B, 6 B) C[l]^-1 E[l]'
     ktt: jnp.ndarray  # (n,)
-    transpose: bool
+
+
+class _Plan(NamedTuple):
+    """Where each brick's rows go: ``pos`` (n,) its slot (``L B``: none,
+    padding bricks of a layered problem), L levels of B slots (one level of
+    n slots: dense), and the assembly of W M (:func:`_plan`)."""
+
+    pos: jnp.ndarray
+    L: int
+    B: int
+    assemble: object
+
+
+def _plan(ctx: SoftContext) -> _Plan:
+    """The static structure of W M: dense (``ctx.slot`` None: brick b in
+    slot b) or layered (``ctx.slot``, every brick's supports in the layer
+    below: :func:`~stablelego_jax.solvers.problem.soft_levels`)."""
+    n = ctx.g.shape[0]
+    if ctx.slot is None:
+        L, B, pos = 1, n, jnp.arange(n, dtype=jnp.int32)
+    else:
+        (L, B), pos = ctx.lay.shape, ctx.slot
+    N = L * B
+    pcb = jnp.concatenate([pos, jnp.full((1,), N, pos.dtype)])[ctx.cb]
+    return _Plan(pos, L, B, reduced_matrix(pcb, ctx.coef, ctx.normal, N, L, ctx.chunk))
 
 
 def _fg(pc: _Pieces, transpose: bool):
@@ -301,130 +344,44 @@ def _theta(ctx: SoftContext, pc: _Pieces):
     return jnp.where(ctx.real, theta, 0.0)
 
 
-def _factor(ctx: SoftContext, pc: _Pieces, transpose: bool = False) -> _Lin:
-    """Factor the Newton matrix (or its transpose): dense, or layer by layer
-    when ``ctx.slot`` is set."""
-    if ctx.slot is not None:
-        return _factor_layered(ctx, pc, transpose)
-    f, g = _fg(pc, transpose)
-    n = ctx.g.shape[0]
-    theta = _theta(ctx, pc)
-    ktt = _ktt(ctx, pc)
-    m = pc.hS.shape[0]
-    left, right = _sides(ctx, transpose)
-    idx = (ctx.cb[:, :, None] * 6 + jnp.arange(6)[None, None, :]).reshape(m, 12)
-    al = left.reshape(m, 12)
-    ar = right.reshape(m, 12)
-    N = 6 * (n + 1)
-    K = jnp.zeros((N, N), theta.dtype)
-    K = K.at[idx[:, :, None], idx[:, None, :]].add(al[:, :, None] * (theta[:, None, None] * ar[:, None, :]))
-    Kyt = jnp.zeros((N, n + 1), theta.dtype).at[idx, ctx.owner[:, None]].add(al * (f / pc.hD)[:, None])
-    Kty = jnp.zeros((n + 1, N), theta.dtype).at[ctx.owner[:, None], idx].add(ar * (g / pc.hD)[:, None])
-    top = jnp.concatenate([K[: 6 * n, : 6 * n] + jnp.diag(1.0 / pc.ddpsi.reshape(-1)), -Kyt[: 6 * n, :n]], axis=1)
-    bot = jnp.concatenate([Kty[:n, : 6 * n], jnp.diag(ktt)], axis=1)
-    lu, piv = jax.scipy.linalg.lu_factor(jnp.concatenate([top, bot], axis=0))
-    return _Lin(pc=pc, lu=lu, piv=piv, ktt=ktt, transpose=transpose)
-
-
-def _zext(v):
-    """``v`` with one zero row appended (the target of index ``len(v)``)."""
-    return jnp.concatenate([v, jnp.zeros((1,) + v.shape[1:], v.dtype)])
-
-
-def _factor_layered(ctx: SoftContext, pc: _Pieces, transpose: bool) -> _Lin:
-    """Block-tridiagonal factorisation of the (6 n) matrix in y, t eliminated:
-
-        M = diag(1/ddpsi) + A~ diag(theta) A^T + A~ diag(f/hD) P diag(1/ktt) P^T diag(g/hD) A
-
-    The last term is a sum of rank-one terms u_b v_b^T / ktt_b, one per
-    brick b, over b's layer and the layer below (its NORMAL columns). Both
-    are summed per chunk of columns joining one pair of bricks
-    (``ctx.chunk``; one chunk per column without it) and then placed."""
-    f, g = _fg(pc, transpose)
+def _factor(ctx: SoftContext, plan: _Plan, pc: _Pieces) -> _Lin:
+    """Assemble W M (see above) and factor it (block Cholesky)."""
+    N = plan.L * plan.B
     dtype = pc.hS.dtype
-    L, B = ctx.lay.shape
-    k6, nb = 6 * B, L * B
-    kk = k6 * k6
-    m = pc.hS.shape[0]
     theta = _theta(ctx, pc)
     ktt = _ktt(ctx, pc)
-    left, right = _sides(ctx, transpose)
-    chunk = jnp.arange(m)[:, None] if ctx.chunk is None else ctx.chunk  # (C, W)
-    al = _zext(left.reshape(m, 12))[chunk]  # (C, W, 12)
-    ar = _zext(right.reshape(m, 12))[chunk]
-    fq = _zext(jnp.where(ctx.normal, f / pc.hD, 0.0))[chunk]  # (C, W)
-    gq = _zext(jnp.where(ctx.normal, g / pc.hD, 0.0))[chunk]
-    K = jnp.einsum("cwi,cwj->cij", al * _zext(theta)[chunk][..., None], ar)  # (C, 12, 12)
-    u = jnp.einsum("cwi,cw->ci", al, fq)  # (C, 12) rank-one parts of the chunk's owner
-    v = jnp.einsum("cwi,cw->ci", ar, gq)
-    # places: the chunk's two bricks (those of its first column; the sink n -> L B)
-    n = ctx.g.shape[0]
-    pos = jnp.concatenate([ctx.slot, jnp.full((1,), nb, ctx.slot.dtype)])
-    cb = jnp.concatenate([ctx.cb, jnp.full((1, 2), n, ctx.cb.dtype)])[chunk[:, 0]]  # (C, 2)
-    pb = jnp.repeat(pos[cb], 6, axis=1)  # (C, 12)
-    lay12 = pb // B
-    in12 = 6 * (pb % B) + jnp.tile(jnp.arange(6), 2)[None, :]
-    # A~ diag(theta) A^T into the diagonal (D), below (E[l] = block (l+1, l))
-    # or above (F[l] = block (l, l+1)) blocks
-    lr, lc = lay12[:, :, None], lay12[:, None, :]
-    cell = in12[:, :, None] * k6 + in12[:, None, :]
-    ok = (lr < L) & (lc < L)
-    flat = jnp.where(ok & (lr == lc), lr * kk + cell,
-                     jnp.where(ok & (lr == lc + 1), (L + lc) * kk + cell,
-                               jnp.where(ok & (lr + 1 == lc), (2 * L + lr) * kk + cell, 3 * L * kk)))
-    buf = jnp.zeros((3 * L * kk,), dtype).at[flat].add(K, mode="drop")
-    D, E, F = (buf[i * L * kk:(i + 1) * L * kk].reshape(L, k6, k6) for i in range(3))
-    # rank-one terms: u_b (from A~, f) and v_b (from A, g) on b's layer (own)
-    # and the layer below (below); a chunk's owner is its slot-0 brick
-    po = jnp.repeat(pos[cb[:, :1]], 12, axis=1)  # (C, 12)
-    lo = po // B
-    to = jnp.where((lo < L) & (lay12 == lo), po * k6 + in12,
-                   jnp.where((lo < L) & (lay12 == lo - 1), (nb + po) * k6 + in12, 2 * nb * k6))
-    U = jnp.zeros((2 * nb * k6,), dtype).at[to].add(u, mode="drop")
-    V = jnp.zeros((2 * nb * k6,), dtype).at[to].add(v, mode="drop")
-    Us, Uw = U[: nb * k6].reshape(L, B, k6), U[nb * k6:].reshape(L, B, k6)
-    Vs, Vw = V[: nb * k6].reshape(L, B, k6), V[nb * k6:].reshape(L, B, k6)
-    rk = jnp.zeros((nb + 1,), dtype).at[pos[:-1]].set(1.0 / ktt, mode="drop")[:nb].reshape(L, B, 1)
-    mm = lambda a, b: jnp.matmul(jnp.swapaxes(a, 1, 2), rk * b)  # noqa: E731  sum_b a_b b_b^T / ktt_b per layer
-    D = D + mm(Us, Vs)
-    if L > 1:
-        D = D.at[:-1].add(mm(Uw, Vw)[1:])
-        F = F.at[:-1].add(mm(Uw, Vs)[1:])
-        E = E.at[:-1].add(mm(Us, Vw)[1:])
-    # diag(1/ddpsi) on the bricks' rows; 1 on empty slots
-    dg = jnp.ones((nb + 1, 6), dtype).at[pos[:-1]].set(1.0 / pc.ddpsi, mode="drop")[:nb].reshape(L, k6)
-    D = D + jax.vmap(jnp.diag)(dg)
-    return _Lin(pc=pc, lu=block_lu(D, E, F), piv=None, ktt=ktt, transpose=transpose)
+    q = jnp.where(ctx.normal, ctx.osym * pc.f / pc.hD, 0.0)
+    rho = jnp.zeros((N + 1,), dtype).at[plan.pos].set(ctx.ws / ktt, mode="drop")[:N]
+    dr = jnp.ones((N + 1, 6), dtype).at[plan.pos].set(ctx.ws[:, None] / pc.ddpsi, mode="drop")[:N]
+    D, E = plan.assemble(ctx.csym * theta, q, rho, dr.reshape(-1))
+    C, G = block_cholesky(D, E)
+    return _Lin(pc=pc, C=C, G=G, ktt=ktt)
 
 
-def _solve(ctx: SoftContext, lin: _Lin, r):
-    """Solve J d = r (J^T d = r for a transposed factorisation), r = (r_S, r_D, r_t).
+def _solve(ctx: SoftContext, plan: _Plan, lin: _Lin, r, transpose: bool = False):
+    """Solve J d = r (J^T d = r with ``transpose``), r = (r_S, r_D, r_t).
 
     Returns (d, y, d2): d = (dS, dD, dt), y the residual-price part, d2 =
     dt_owner - o dD (the change of the t - o D slack) computed without
     cancellation."""
     pc = lin.pc
-    f, g = _fg(pc, lin.transpose)
+    f, g = _fg(pc, transpose)
     rS, rD, rt = r
     n = rt.shape[0]
-    left, right = _sides(ctx, lin.transpose)
+    left, right = _sides(ctx, transpose)
     u = jnp.where(ctx.real, rS / pc.hS, 0.0) - jnp.where(ctx.pair, rD / pc.hD, 0.0)
     ry = _apply(left, ctx.cb, u, n)
     rtt = rt - _owner_sum(ctx, jnp.where(ctx.pair, g * rD / pc.hD, 0.0), n)
-    if ctx.slot is None:
-        sol = jax.scipy.linalg.lu_solve((lin.lu, lin.piv), jnp.concatenate([ry.reshape(-1), rtt]))
-        y, dt = sol[: 6 * n].reshape(n, 6), sol[6 * n:]
-    else:
-        L, B = ctx.lay.shape
-        fq = jnp.where(ctx.normal, f / pc.hD, 0.0)
-        gq = jnp.where(ctx.normal, g / pc.hD, 0.0)
-        rhs = ry + _apply(left * fq[:, None, None], ctx.cb, _ext(rtt / lin.ktt)[ctx.owner], n)
-        pos = ctx.slot
-        Y = jnp.zeros((L * B + 1, 6), rhs.dtype).at[pos].add(rhs, mode="drop")[: L * B].reshape(L, 6 * B)
-        Y = block_lu_solve(lin.lu, Y).reshape(L * B, 6)
-        placed = pos < L * B
-        y = jnp.where(placed[:, None], Y[jnp.minimum(pos, L * B - 1)], rhs * pc.ddpsi)
-        dt = (rtt - _owner_sum(ctx, gq * _apply_t(right, ctx.cb, y), n)) / lin.ktt
+    fq = jnp.where(ctx.normal, f / pc.hD, 0.0)
+    gq = jnp.where(ctx.normal, g / pc.hD, 0.0)
+    rhs = ry + _apply(left * fq[:, None, None], ctx.cb, _ext(rtt / lin.ktt)[ctx.owner], n)
+    N = plan.L * plan.B
+    ws = ctx.ws[:, None]
+    Y = jnp.zeros((N + 1, 6), rhs.dtype).at[plan.pos].add(rhs if transpose else ws * rhs, mode="drop")[:N]
+    Y = block_solve(lin.C, lin.G, Y.reshape(plan.L, 6 * plan.B)).reshape(N, 6)
+    Y = Y[jnp.minimum(plan.pos, N - 1)]
+    y = jnp.where((plan.pos < N)[:, None], ws * Y if transpose else Y, rhs * pc.ddpsi)
+    dt = (rtt - _owner_sum(ctx, gq * _apply_t(right, ctx.cb, y), n)) / lin.ktt
     aty = _apply_t(right, ctx.cb, y)
     dte = _ext(dt)[ctx.owner]
     dS = jnp.where(ctx.real, (rS - aty) / pc.hS, rS)
@@ -477,6 +434,7 @@ def _ipm(ctx: SoftContext, opts: BarrierOptions):
     wts = _weights(ctx, opts.params)
     n_pairs = sum(jnp.sum(o) for o in ons)
     cost = ctx.cost
+    plan = _plan(ctx)
 
     def mean_gap(s, z):
         return sum(_msk(sv * zv / w, o).sum() for sv, zv, o, w in zip(s, z, ons, wts)) / n_pairs
@@ -497,7 +455,7 @@ def _ipm(ctx: SoftContext, opts: BarrierOptions):
 
     def direction(x, r, s, z, target, lin):
         rp, h, _, dpsi, rr, _ = pieces(x, r, s, z, target)
-        (dS, dD, dt), y, d2 = _solve(ctx, lin, rr)
+        (dS, dD, dt), y, d2 = _solve(ctx, plan, lin, rr)
         dx = (-dS, -dD, -dt)
         # the residual rows' duals from y (the backward-stable part of the
         # solve): their dual equations hold to rounding, and the rounding
@@ -558,7 +516,7 @@ def _ipm(ctx: SoftContext, opts: BarrierOptions):
         mu = mean_gap(s, z)
         # one factorisation per iteration (the matrix does not depend on the target)
         _, _, _, _, _, pc = pieces(x, r, s, z, wts)
-        lin = _factor(ctx, pc)
+        lin = _factor(ctx, plan, pc)
         # predictor (affine scaling, target 0), then corrector (centring
         # towards tau plus the second-order term; pure centring once the target
         # is the final mu): one traced direction in a scan of length 2
@@ -648,7 +606,8 @@ def _x_bwd(opts, res, ct):
     (x, (dpsi, ddpsi, _)), weights, loads, prob = res
     ctx0 = soft_context(weights, loads, prob, opts.params)
     _, pc = _barrier_system(x, ctx0, ctx0, dpsi, ddpsi, opts)
-    lam, y, _ = _solve(ctx0, _factor(ctx0, pc, transpose=True), ct[0])
+    plan0 = _plan(ctx0)
+    lam, y, _ = _solve(ctx0, plan0, _factor(ctx0, plan0, pc), ct[0], transpose=True)
 
     def rfun(w, l, cc):  # R with the residual rows' price frozen
         return _barrier_system(x, soft_context(w, l, prob._replace(col_coef=cc), opts.params), None, dpsi, ddpsi,

@@ -1,7 +1,8 @@
 """Target shapes for the generator: small objects in a (G, G, G) grid, split by object.
 
-Why small: the stability loss solves a dense (7 n x 7 n) LU per interior-point
-iteration on the CPU, so every soft problem of a training step is kept to a
+Why small: the stability loss factorises a dense (6 n x 6 n) matrix per
+interior-point iteration on the CPU (training does not use the layered
+factorisation), so every soft problem of a training step is kept to a
 few dozen placements; the shapes are therefore objects of at most ~8 cells
 across and a few layers high (decoded layouts of ~5-40 bricks), placed in
 the 20^3 grid. Most procedural kinds have overhangs (arms, caps, decks,

@@ -1,0 +1,130 @@
+"""The reduced Newton matrix of both interior points, assembled by blocks.
+
+Both interior points (the verdict LP of :mod:`.ipm`, the soft problems of
+:mod:`.soft_ipm`) reduce each Newton system, in closed form per column and
+per brick (its largest-drag variable eliminated), to one symmetric positive
+definite matrix over the bricks' 6 equilibrium rows:
+
+    M = A diag(e) A' + sum_b rho_b (A q_b)(A q_b)' + diag(dr)
+
+with A the (scaled) equilibrium operator ((6 n, m): column p's wrench on
+its two bricks), ``e`` (m,) the columns' weights, ``q_b`` the weights
+``q`` (m,) restricted to brick b's NORMAL columns (those on its bottom,
+whose drags its largest-drag variable bounds: ``A q_b`` touches b and the
+bricks under it), ``rho`` (n,) and ``dr`` (6 n,) diagonal terms.
+:func:`reduced_matrix` returns the function that assembles M's blocks for
+:func:`~stablelego_jax.solvers.blocks.block_cholesky`: bricks numbered in
+``L`` levels of ``B`` slots (``L = 1``: one dense block), every column
+joining slots of one level or two adjacent ones. Three assemblies, by
+where a brick's supports (the bricks under its NORMAL columns) lie:
+
+* one block (``L = 1``): the bricks' vectors ``A q_b`` as an (n, 6 n)
+  matrix S, ``S' diag(rho) S``;
+* layers (every support in the level just below its brick's): a brick's own
+  part of ``A q_b`` is a 6 x 6 block on the diagonal, its product with the
+  supports' part an outer product, so one product over each level (the
+  supports' part with itself) is all the matrix work;
+* slabs (``supports`` given: a brick's supports may lie in any level next to
+  its own): each brick's vector compacted to its own part and ``K``
+  supports' parts, one ``(6 (K + 1))^2`` piece a brick, placed in the same
+  scatter as the columns' pieces.
+"""
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+
+from .problem import gram_plan
+
+__all__ = ["reduced_matrix"]
+
+
+def reduced_matrix(col_brick, coef, normal, n: int, L: int, chunks=None, supports=None, col_slot=None):
+    """The assembly of M for one problem's static structure.
+
+    col_brick (m, 2) int: each column's two brick slots (``0..n-1``; ``n``:
+    none, e.g. the baseplate); slot 0 is the brick whose bottom a NORMAL
+    column is on. coef (m, 2, 6): the columns' scaled wrenches on them.
+    normal (m,) bool: the real NORMAL columns (the support in ``q_b``).
+    ``n = L B`` slots, slot s in level ``s // B``; ``chunks`` (R, W): columns
+    grouped by the pair of slots they join (``m``: none), or None.
+    ``supports`` (n, K) and ``col_slot`` (m,): the slab assembly (each
+    brick's distinct supports, ``n`` = none, and each NORMAL column's
+    support's place among them, ``K``: none); otherwise ``L > 1`` requires
+    every support in the level below its brick's (other terms are dropped).
+
+    Returns ``assemble(e, q, rho, dr) -> (D, E)``, e and q (m,), rho (n,), dr
+    (n * 6,): the (L, 6 B, 6 B) diagonal blocks and blocks below them of
+    M (the layout of :mod:`.blocks`)."""
+    col_brick = jnp.minimum(jnp.asarray(col_brick), n)
+    m = col_brick.shape[0]
+    gram = gram_plan(col_brick, coef, n, L, chunks)
+    B, k6 = gram.B, gram.k
+    dtype = coef.dtype
+    c12 = coef.reshape(m, 12)
+    ob, lo = col_brick[:, 0], col_brick[:, 1]
+    lay_o, lay_l = ob // B, lo // B
+    ok_n = (jnp.asarray(normal) & (ob < n))[:, None]
+    real = (lo < n)[:, None]
+    own_idx = jnp.where(ok_n[:, 0], ob, n)
+
+    def own_parts(q):
+        """(n, 6) each brick's own part of its vector A q_b."""
+        return jnp.zeros((n + 1, 6), dtype).at[own_idx].add(q[:, None] * c12[:, :6])[:n]
+
+    def diag_blocks(dr):
+        return jax.vmap(jnp.diag)(dr.reshape(L, k6))
+
+    if supports is not None:
+        supports = jnp.asarray(supports)
+        K = supports.shape[1]
+        # entries (n, 6 (K + 1)) of brick b's compact vector [own part; K supports' parts]: their rows in [D; E]
+        vb = jnp.repeat(jnp.concatenate([jnp.arange(n, dtype=supports.dtype)[:, None], supports], 1), 6, 1)
+        vpos = 6 * (vb % B) + jnp.tile(jnp.arange(6), K + 1)[None, :]
+        vl = vb // B
+        lr, lc = vl[:, :, None], vl[:, None, :]
+        ok = (vb[:, :, None] < n) & (vb[:, None, :] < n)
+        cell = vpos[:, :, None] * k6 + vpos[:, None, :]
+        sup_idx = jnp.where(ok & (lr == lc), lr * k6 * k6 + cell,
+                            jnp.where(ok & (lr == lc + 1), (L + lc) * k6 * k6 + cell, 2 * L * k6 * k6))
+        slot_idx = jnp.where(ok_n[:, 0] & real[:, 0] & (col_slot < K), ob * K + col_slot, n * K)
+
+        def assemble(e, q, rho, dr):
+            v = jnp.zeros((n * K + 1, 6), dtype).at[slot_idx].add(q[:, None] * c12[:, 6:])[: n * K]
+            vec = jnp.concatenate([own_parts(q), v.reshape(n, 6 * K)], axis=1)  # (n, 6 (K + 1))
+            piece = (rho[:, None] * vec)[:, :, None] * vec[:, None, :]
+            D, E = gram.blocks(e, extra=(sup_idx, piece))
+            return D + diag_blocks(dr), E
+
+        return assemble
+
+    if L > 1:
+        below = ok_n & real & (lay_l == lay_o - 1)[:, None]
+        w_idx = jnp.where(below, ob[:, None] * k6 + gram.pos[:, 6:], n * k6)
+        eye = jnp.eye(B, dtype=dtype)[None, :, None, :, None]
+
+        def assemble(e, q, rho, dr):
+            D, E = gram.blocks(e)
+            o = own_parts(q)
+            W = jnp.zeros((n * k6 + 1,), dtype).at[w_idx].add(q[:, None] * c12[:, 6:])[: n * k6].reshape(L, B, k6)
+            ro = (rho[:, None] * o).reshape(L, B, 6)
+            # 6 x 6 diagonal blocks rho o o' plus diag(dr), placed on the block diagonal
+            P = ro[..., :, None] * o.reshape(L, B, 1, 6) + jax.vmap(jax.vmap(jnp.diag))(dr.reshape(L, B, 6))
+            D = D + (P[:, :, :, None, :] * eye).reshape(L, k6, k6)
+            WW = jnp.matmul(jnp.swapaxes(W * rho.reshape(L, B, 1), 1, 2), W)
+            OW = (ro[..., None] * W[:, :, None, :]).reshape(L, k6, k6)  # rows: owners' slots, columns: below
+            return D.at[:-1].add(WW[1:]), E.at[:-1].add(OW[1:])
+
+        return assemble
+
+    s_idx = jnp.where(ok_n, jnp.concatenate([ob[:, None] * k6 + gram.pos[:, :6],
+                                             jnp.where(real, ob[:, None] * k6 + gram.pos[:, 6:], n * k6)], 1),
+                      n * k6)
+
+    def assemble(e, q, rho, dr):
+        D, E = gram.blocks(e)
+        S = jnp.zeros((n * k6 + 1,), dtype).at[s_idx].add(q[:, None] * c12)[: n * k6].reshape(1, n, k6)
+        D = D + jnp.matmul(jnp.swapaxes(S * rho.reshape(1, n, 1), 1, 2), S)
+        return D + diag_blocks(dr), E
+
+    return assemble
