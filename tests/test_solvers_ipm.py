@@ -137,6 +137,28 @@ def test_analyze_uses_interior_point_and_admm_on_request():
     assert b.solver == "admm" and b.stable == a.stable
 
 
+def test_reference_outcomes_match_labels_and_exact():
+    """The bundled paper structures in one batched call (one compiled solver
+    per bucket): every JAX solve converged, the physical outcome and the
+    brick that collapses first, the exact solver's objective (1e-3
+    relative) and every per-brick score (2e-3)."""
+    from stablelego_jax.batch import analyze_many
+
+    with open(os.path.join(EXAMPLES, "labels_stablelego.json")) as fh:
+        labels = {k: v for k, v in json.load(fh).items() if not k.startswith("_")}
+    names = sorted(labels)
+    lays = [load_layout(os.path.join(EXAMPLES, "stablelego", n)) for n in names]
+    for name, lay, a in zip(names, lays, analyze_many(lays, "jax")):
+        e = analyze_layout(lay, solver="exact")
+        assert a.solver == "jax" and a.converged, name
+        assert a.stable == labels[name]["stable"], name
+        if not a.stable:
+            assert a.weakest == labels[name]["collapses_at"], name
+        assert a.objective == pytest.approx(e.objective, rel=1e-3), name
+        for k in a.scores:
+            assert a.scores[k] == pytest.approx(e.scores[k], abs=2e-3), (name, k)
+
+
 @needs_shared
 def test_paper_structures_match_labels_and_highs(tmp_path):
     """Batched interior point on the paper's structures: the physical outcome,

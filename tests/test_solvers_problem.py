@@ -2,6 +2,8 @@
 import dataclasses
 import os
 
+import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 
@@ -253,7 +255,7 @@ def test_layer_gram_blocks_are_the_dense_weighted_gram(layered):
         prob = layered_problem(m, 1)
     A, _, coef, _, _ = operators(prob, m.params)
     n, mm = prob.gravity.shape[0], prob.col_kind.shape[0]
-    Ad = np.stack([np.asarray(A(np.eye(mm)[j])).reshape(-1) for j in range(mm)], axis=1)  # (6n, m)
+    Ad = np.asarray(jax.jit(jax.vmap(A))(jnp.eye(mm))).reshape(mm, -1).T  # (6n, m): A applied to each column
     e = np.random.default_rng(1).uniform(0.5, 2.0, size=mm)
     M = (Ad * e) @ Ad.T
     # columns grouped by brick pair (the problem's chunks, several per pair here), or one piece per column
