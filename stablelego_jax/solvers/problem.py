@@ -217,10 +217,11 @@ def stack_soft(problems: Sequence[SoftProblem]) -> SoftProblem:
 
 def soft_levels(prob: SoftProblem) -> np.ndarray:
     """(n,) layer of each brick slot for the layered factorisation (padding:
-    0): ``prob.level`` where every column, and every brick with the bricks
-    under it, spans its own layer or the one below (:func:`levels_ok`),
-    else 0 for all (one layer; a scene's contact levels can put a hanging
-    brick above the one it hangs from)."""
+    0): ``prob.level`` where every column spans one layer or two adjacent
+    ones and every brick's supports lie in the layer below its own (the
+    rule of :func:`layer_levels`, :func:`levels_ok` "below"), else 0 for all
+    (one layer; a scene's contact levels can put a hanging brick above the
+    one it hangs from)."""
     real = np.asarray(prob.brick_mask)
     z = np.where(real, np.asarray(prob.level, np.int64), 0)
     if real.any():
@@ -365,9 +366,8 @@ def levels_ok(model: ForceModel, levels: np.ndarray, supports: str = "adjacent")
     of one level or of two adjacent ones, and so does every brick with its
     supports, the bricks under its NORMAL columns (its largest drag couples
     them all). ``supports``: where a brick's supports may lie, "adjacent"
-    (its own level or either next one: slabs), "at or below" (its own or
-    the one below: what the layered soft factorisation assembles) or
-    "below" (the one below: what the layered verdict solve assembles)."""
+    (its own level or either next one: slabs) or "below" (the one below:
+    what the layered assembly of :mod:`.newton` needs)."""
     n, m = model.n, model.m
     return _spans_ok(model.col_brick[:m], np.ones(m, bool), model.group[:n], levels, supports)
 
@@ -388,11 +388,9 @@ def _spans_ok(col_brick, col_mask, group, levels, supports: str) -> bool:
     own = lv[:n, None]
     hi = np.where(low < n, lv[low], own).max(1)
     lo_ = np.where(low < n, lv[low], own).min(1)
-    if supports not in ("adjacent", "at or below", "below"):
+    if supports not in ("adjacent", "below"):
         raise ValueError(f"unknown supports rule {supports!r}")
     if supports == "below" and (np.where(low < n, lv[low], -1) >= np.where(low < n, own, 0)).any():
-        return False
-    if supports == "at or below" and (hi > own[:, 0]).any():
         return False
     return bool((np.maximum(hi, own[:, 0]) - np.minimum(lo_, own[:, 0]) <= 1).all())
 
@@ -811,7 +809,6 @@ def gram_plan(col_brick, coef, n: int, L: int, chunks=None) -> LayerGram:
     adjacent layers; coefficients of no slot are dropped. ``chunks`` (R, W):
     columns grouped by the pair of slots they join (``m``: none), or None."""
     m = col_brick.shape[0]
-    col_brick = jnp.minimum(jnp.asarray(col_brick), n)
     B = n // L
     k = 6 * B
     comp = jnp.tile(jnp.arange(6), 2)[None, :]
