@@ -15,7 +15,7 @@ $(BIN)/stablelego: pyproject.toml
 
 demo: $(BIN)/stablelego
 	@mkdir -p out
-	$(BIN)/stablelego analyze examples/stablelego/*.json examples/brickgpt/*.txt --png out --html out
+	$(BIN)/stablelego analyze examples/stablelego/*.json examples/brickgpt/*.txt --solver jax --png out --html out
 	$(BIN)/stablelego analyze examples/stablelego/*.json examples/brickgpt/*.txt --solver exact --json > out/exact.jsonl
 	@echo "heat maps in out/*.png and out/*.html (3D), exact-solver results in out/exact.jsonl"
 

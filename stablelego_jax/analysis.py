@@ -18,7 +18,7 @@ from .solvers.exact import solve_exact
 # of a second, which an exact-solver run never needs.
 
 __all__ = ["Analysis", "analyze", "analyze_layout", "analyze_exact", "analyze_baseline", "make_analysis", "error_message",
-           "solve_jax", "solver_fn", "resolve_unconverged", "LONGER_RUN"]
+           "solve_jax", "solver_fn", "resolve_unconverged", "LONGER_RUN", "auto_solver", "JAX_START_S"]
 
 #: A JAX run stopped at its iteration cap is tried again with this many times the cap.
 LONGER_RUN = 4
@@ -112,17 +112,61 @@ def solve_jax(model: ForceModel, opts=None):
     bricks in input order)."""
     import jax
 
-    from .solvers import admm, ipm
+    from .solvers import ipm
     from .solvers.compiled import compiled
-    from .solvers.problem import MIN_COLUMNS, MIN_SLOTS, Solution, fit_plan, plan_problem, rung, solve_plan
+    from .solvers.problem import Solution
 
     opts = opts or ipm.IPMOptions()
-    name = "admm" if isinstance(opts, admm.SolverOptions) else "ipm"
-    m_pad, p_pad = rung(model.m, MIN_COLUMNS), rung(model.group.shape[1], MIN_SLOTS)
-    padded, prob = plan_problem(model, fit_plan(model, solve_plan(model), m_pad), m_pad, p_pad)
-    arrays = tuple(a for a in prob if a is not None)
+    name, padded, arrays, _ = _single_problem(model, opts)
     exe = compiled(name, solver_fn(model.params, opts), (model.params, opts), arrays)
     return Solution(*jax.device_get(exe(*arrays))), padded
+
+
+def _single_problem(model: ForceModel, opts):
+    """(executable name, padded model, problem arrays, (bucket, padded
+    columns)) of :func:`solve_jax`."""
+    from .solvers import admm
+    from .solvers.problem import MIN_COLUMNS, MIN_SLOTS, fit_plan, plan_problem, rung, solve_plan
+
+    name = "admm" if isinstance(opts, admm.SolverOptions) else "ipm"
+    m_pad, p_pad = rung(model.m, MIN_COLUMNS), rung(model.group.shape[1], MIN_SLOTS)
+    key = fit_plan(model, solve_plan(model), m_pad)
+    padded, prob = plan_problem(model, key, m_pad, p_pad)
+    return name, padded, tuple(a for a in prob if a is not None), (key, m_pad)
+
+
+#: Seconds the JAX solver's first answer in a process costs beyond the
+#: exact solver's, besides compiling or loading its executable: starting
+#: JAX's backend. ``stablelego analyze examples/stablelego/stair_20.json``
+#: with the executable on disk: 1.87-2.01 s with ``--solver jax``,
+#: 1.85-1.87 s with ``--solver exact`` (2026-11-26, BENCHMARKS.md).
+JAX_START_S = 0.2
+
+
+def auto_solver(model: ForceModel) -> str:
+    """"exact" or "jax": the solver of ``solver="auto"`` for one layout,
+    whichever is estimated faster: HiGHS
+    (:func:`~stablelego_jax.solvers.exact.estimated_seconds`) or the
+    interior point: its solve (:func:`~stablelego_jax.solvers.problem.plan_seconds`)
+    plus ``JAX_START_S`` plus loading its executable (``LOAD_S``) when it is
+    in this process or on disk, else compiling it (``SINGLE_COMPILE_S``)."""
+    import jax
+
+    from .solvers import ipm
+    from .solvers.compiled import available
+    from .solvers.exact import estimated_seconds
+    from .solvers.problem import LOAD_S, SINGLE_COMPILE_S, plan_seconds
+
+    exact_s = estimated_seconds(model)
+    opts = ipm.IPMOptions()
+    name, _, arrays, (key, m_pad) = _single_problem(model, opts)
+    jax_s = JAX_START_S + plan_seconds(key, m_pad) + LOAD_S
+    if exact_s < jax_s:  # cheaper than the check below
+        return "exact"
+    specs = [jax.ShapeDtypeStruct(np.shape(a), np.result_type(a)) for a in arrays]
+    if not available(name, (model.params, opts), specs):
+        jax_s += SINGLE_COMPILE_S - LOAD_S
+    return "exact" if exact_s < jax_s else "jax"
 
 
 def resolve_unconverged(a: "Analysis", opts=None, params: Params | None = None) -> "Analysis":
@@ -188,12 +232,13 @@ def analyze_layout(
     method: str = "ours",
     fallback: bool = True,
 ) -> Analysis:
-    """Analyse an in-memory layout with ``solver`` in {"jax", "admm", "exact"}.
+    """Analyse an in-memory layout with ``solver`` in {"jax", "admm", "exact", "auto"}.
 
     "jax": the batched-ready interior-point solver (:mod:`~stablelego_jax.solvers.ipm`;
     ``opts`` an IPMOptions, or a SolverOptions to run ADMM instead);
     "admm": the first-order solver (:mod:`~stablelego_jax.solvers.admm`);
-    "exact": HiGHS.
+    "exact": HiGHS; "auto": "exact" or "jax", whichever :func:`auto_solver`
+    estimates faster (the Analysis' ``solver`` says which).
 
     ``exact_method``, ``exact_scale``: HiGHS method and row scaling of the
     exact solver (see :func:`~stablelego_jax.solvers.exact.solve_exact`;
@@ -204,14 +249,16 @@ def analyze_layout(
     (:func:`resolve_unconverged`); False returns it as it is."""
     if method not in METHODS:
         raise ValueError(f"unknown method {method!r} (expected one of {', '.join(METHODS)})")
-    if method != "ours" and solver != "exact":
+    if method != "ours" and solver not in ("exact", "auto"):
         raise ValueError(f"method {method!r} runs on the exact solver only (solver='exact'), not {solver!r}")
     t0 = time.perf_counter()
     model = compile_layout(layout, params)
+    if solver == "auto":
+        solver = "exact" if method != "ours" else auto_solver(model)
     if method != "ours" or solver == "exact":
         return analyze_exact(layout, model, method, t0, exact_method, exact_scale)
     if solver not in ("jax", "admm"):
-        raise ValueError(f"unknown solver {solver!r} (expected 'jax', 'admm' or 'exact')")
+        raise ValueError(f"unknown solver {solver!r} (expected 'jax', 'admm', 'exact' or 'auto')")
     if solver == "admm":
         from .solvers.admm import SolverOptions
 

@@ -43,8 +43,10 @@ from .model import Params, compile_layout
 from .progress import Progress
 from .solvers import admm, ipm
 from .solvers.compiled import STATS, available, compiled
+from .solvers.exact import estimated_seconds
 from .solvers.problem import (
     COMPILE_S,
+    LOAD_S,
     MIN_BRICKS,
     MIN_CHUNKS,
     MIN_COLUMNS,
@@ -64,7 +66,13 @@ from .solvers.problem import (
 
 __all__ = ["find_layouts", "read_results", "ScoreStats", "iter_analyses", "analyze_many", "score_files",
            "batch_solver_fn", "batch_sizes", "plan_bytes", "parse_shard", "in_shard", "cpu_cores",
-           "RESULT_PREFIX", "SolveUnit", "solve_units", "compiled_ready", "assign_units", "POOL_MIN"]
+           "RESULT_PREFIX", "SolveUnit", "solve_units", "compiled_ready", "assign_units", "POOL_MIN",
+           "SOLVERS", "auto_split"]
+
+#: Solvers of :func:`iter_analyses` and :func:`score_files`: the JAX interior
+#: point, ADMM, HiGHS, and "auto" (per group of layouts, whichever of the
+#: interior point and HiGHS is estimated faster: :func:`auto_split`).
+SOLVERS = ("jax", "admm", "exact", "auto")
 
 LAYOUT_EXTS = (".json", ".txt", ".ldr")
 # files that sit beside StableLego layouts but are not layouts
@@ -251,6 +259,7 @@ class ScoreStats:
     load_s: float = 0.0
     wall_s: float = 0.0
     compiles: int = 0
+    auto_exact: int = 0  # ``--solver auto``: layouts given to the exact solver
 
     def to_json(self) -> dict:
         return dataclasses.asdict(self)
@@ -304,6 +313,7 @@ def iter_analyses(
     jobs: int = 1,
     merge: bool = True,
     fallback: bool = True,
+    jax_jobs: int | None = None,
 ) -> Iterator[list[tuple[int, object]]]:
     """Analyse many in-memory layouts, batched: yields, per solver call, the
     list of ``(i, Analysis)`` for the ``layouts[i]`` it solved (batches do
@@ -315,7 +325,10 @@ def iter_analyses(
     group's largest column count and solved ``batch`` at a time by one
     compiled, ``vmap``-ed solver per (bucket, batch size), split over
     ``devices`` local devices (:func:`solve_units`); "exact": HiGHS one at
-    a time (``method``: "ours" or a baseline). With ``jobs`` > 1
+    a time (``method``: "ours" or a baseline); "auto": the interior point's
+    groups that HiGHS is estimated to solve faster (compile included) go to
+    HiGHS, first, the rest to the interior point (:func:`auto_split`; a
+    baseline ``method``: HiGHS). With ``jobs`` > 1
     (:func:`cpu_cores` for every core) and at least ``POOL_MIN`` layouts,
     every solver spreads them over ``jobs`` spawned worker processes
     (JAX on one device: each worker solves whole batches, a bucket's
@@ -328,14 +341,15 @@ def iter_analyses(
     the full budget. ``stats`` (a :class:`ScoreStats`) accumulates solve and
     compile time, compiles and non-converged counts. An Analysis of a JAX
     solver has ``time_s`` = its share of its batch(es) and ``iters``.
+    ``jax_jobs``: worker processes of the JAX solvers (None: ``jobs``).
     ``fallback``: a layout the JAX solver leaves unconverged is solved
     again, alone (:func:`~stablelego_jax.analysis.resolve_unconverged`: a
     longer run, then the exact solver; its ``solver`` says which answered,
     ``retried`` what did not converge); False yields it as it is.
     """
-    if solver not in ("jax", "admm", "exact"):
-        raise ValueError(f"unknown solver {solver!r} (expected 'jax', 'admm' or 'exact')")
-    if method != "ours" and solver != "exact":
+    if solver not in SOLVERS:
+        raise ValueError(f"unknown solver {solver!r} (expected one of {', '.join(SOLVERS)})")
+    if method != "ours" and solver not in ("exact", "auto"):
         raise ValueError(f"method {method!r} runs on the exact solver only")
     st = stats if stats is not None else ScoreStats()
     loaded, bad = [], []
@@ -346,28 +360,71 @@ def iter_analyses(
             bad.append((i, exc))
     if bad:
         yield bad
+    if solver == "auto" and method != "ours":
+        solver = "exact"
     if solver == "exact":
-        jobs = min(max(1, int(jobs)), len(loaded))
-        if jobs <= 1 or len(loaded) < POOL_MIN:
-            parts = ([(i, a)] for i, a in _exact_items(loaded, method, exact_method, exact_scale))
-        else:
-            parts = _exact_pool(loaded, jobs, method, exact_method, exact_scale)
-        for part in parts:
-            for _, a in part:
-                st.solve_s += a.time_s
-                st.not_converged += not a.converged
-            yield part
+        yield from _exact_parts(loaded, jobs, method, exact_method, exact_scale, st)
         return
     if opts is None:
-        opts = ipm.IPMOptions() if solver == "jax" else admm.SolverOptions()
+        opts = ipm.IPMOptions() if solver != "admm" else admm.SolverOptions()
     n_dev = _device_count(devices)
-    units = solve_units(loaded, solver, batch, n_dev, merge, ready=compiled_ready(params, opts, n_dev))
-    jobs = min(max(1, int(jobs)), len(units))
-    if jobs > 1 and n_dev == 1 and len(loaded) >= POOL_MIN:
+    ready = compiled_ready(params, opts, n_dev)
+    units = solve_units(loaded, "admm" if solver == "admm" else "jax", batch, n_dev, merge, ready=ready)
+    if solver == "auto":
+        to_exact, units = auto_split(units, ready, n_dev)
+        st.auto_exact += len(to_exact)
+        yield from _exact_parts(to_exact, jobs, method, exact_method, exact_scale, st)
+        solver = "jax"
+    n_jax = sum(len(u.items) for u in units)
+    jobs = min(max(1, int(jobs if jax_jobs is None else jax_jobs)), max(len(units), 1))
+    if jobs > 1 and n_dev == 1 and n_jax >= POOL_MIN:
         yield from _jax_pool(units, jobs, solver, params, opts, first_cap, fallback, st)
         return
     for unit in units:
         yield from _solve_unit(unit, solver, params, opts, n_dev, first_cap, fallback, st)
+
+
+def _exact_parts(loaded, jobs, method, exact_method, exact_scale, st) -> Iterator[list]:
+    """Lists of (i, Analysis) of compiled layouts ``loaded`` ((i, layout,
+    model)) solved by HiGHS: one layout a list, as each is solved, or with
+    ``jobs`` > 1 and at least ``POOL_MIN`` layouts a few a list from
+    :func:`_exact_pool`; ``st`` accumulates solve time and non-converged counts."""
+    jobs = min(max(1, int(jobs)), len(loaded))
+    if jobs <= 1 or len(loaded) < POOL_MIN:
+        parts = (_exact_items([item], method, exact_method, exact_scale) for item in loaded)
+    else:
+        parts = _exact_pool(loaded, jobs, method, exact_method, exact_scale)
+    for part in parts:
+        for _, a in part:
+            st.solve_s += a.time_s
+            st.not_converged += not a.converged
+        yield part
+
+
+def auto_split(units: Sequence["SolveUnit"], ready=None, n_dev: int = 1,
+               compile_s: float = COMPILE_S) -> tuple[list, list]:
+    """(items for the exact solver, units for the interior point) of
+    ``--solver auto``: each group of units that would share one compiled
+    solver (bucket, padded columns, slots and chunks) goes to whichever
+    solver is estimated faster: the interior point's solve time
+    (:meth:`SolveUnit.seconds`) plus ``compile_s`` when ``ready`` (see
+    :func:`solve_units`) says its executables are not compiled yet (else a
+    load from disk, ``LOAD_S``), against the sum of HiGHS' estimated times
+    (:func:`~stablelego_jax.solvers.exact.estimated_seconds`)."""
+    groups: dict = {}
+    for u in units:
+        groups.setdefault((u.key, u.m_pad, u.p_pad, u.c_pad), []).append(u)
+    to_exact, to_jax = [], []
+    for (key, m_pad, p_pad, c_pad), us in groups.items():
+        sizes = {batch_rung(len(u.items), n_dev, u.bsz) for u in us}
+        warm = ready is not None and ready(key, m_pad, p_pad, c_pad, sizes, us[0].items[0][2])
+        jax_s = sum(u.seconds() for u in us) + (LOAD_S if warm else compile_s)
+        exact_s = sum(estimated_seconds(it[2]) for u in us for it in u.items)
+        if exact_s < jax_s:
+            to_exact += [it for u in us for it in u.items]
+        else:
+            to_jax += us
+    return sorted(to_exact, key=lambda it: it[0]), to_jax
 
 
 @dataclasses.dataclass
@@ -658,7 +715,9 @@ def _score_files(
     (``score_files`` runs this with one OpenBLAS thread: :mod:`~stablelego_jax.blas`).
 
     solver: "jax" (batched interior point, :mod:`~stablelego_jax.solvers.ipm`),
-    "admm" (batched first-order ADMM, :mod:`~stablelego_jax.solvers.admm`) or
+    "admm" (batched first-order ADMM, :mod:`~stablelego_jax.solvers.admm`),
+    "auto" (each group of layouts by whichever of "jax" and "exact" is
+    estimated faster, :func:`auto_split`; each line's ``solver`` says which) or
     "exact" (HiGHS ``exact_method``, one layout at a time; ``exact_scale``:
     torque rows in N stud, the same LP, which HiGHS solves reliably on
     layouts of hundreds of bricks); opts: options of the JAX solver
@@ -681,9 +740,9 @@ def _score_files(
     are skipped. The solving is :func:`iter_analyses`; lines are appended and
     flushed per solver call.
     """
-    if solver not in ("jax", "admm", "exact"):
-        raise ValueError(f"unknown solver {solver!r} (expected 'jax', 'admm' or 'exact')")
-    if method != "ours" and solver != "exact":
+    if solver not in SOLVERS:
+        raise ValueError(f"unknown solver {solver!r} (expected one of {', '.join(SOLVERS)})")
+    if method != "ours" and solver not in ("exact", "auto"):
         raise ValueError(f"method {method!r} runs on the exact solver only")
     t_run = time.perf_counter()
     if solver != "exact":
@@ -741,7 +800,7 @@ def _score_files(
                     if report:
                         rec["left_out"] = {k: c for k, (c, _) in report.items()}
                         st.left_out += 1
-                    if solver != "exact":
+                    if (a.solver if solver == "auto" else solver) != "exact":
                         rec["iters"] = a.iters
                     recs.append(rec)
                     st.scored += 1

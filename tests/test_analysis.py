@@ -47,3 +47,22 @@ def test_error_message_names_the_file_once(tmp_path):
     assert error_message(p, LayoutError(p, "bad")) == f"{p}: bad"
     assert error_message(p, RuntimeError("boom")) == f"{p}: RuntimeError: boom"
     assert np.isfinite(analyze(STAIR20, solver="exact").objective)
+
+
+def test_auto_picks_highs_for_a_small_layout_and_jax_where_highs_is_slow(monkeypatch):
+    """``solver="auto"``: a small layout goes to HiGHS (its estimate is below
+    the interior point's, even with the executable ready); when HiGHS is
+    estimated slower than a compile and a solve, the interior point; a
+    baseline method always runs on HiGHS."""
+    from stablelego_jax import analysis
+    from stablelego_jax.solvers import exact
+
+    lay = load_layout(STAIR20)
+    model = compile_layout(lay)
+    assert analysis.auto_solver(model) == "exact"
+    a = analyze_layout(lay, solver="auto")
+    e = analyze_layout(lay, solver="exact")
+    assert a.solver == "exact" and a.scores == e.scores
+    monkeypatch.setattr(exact, "estimated_seconds", lambda m: 60.0)
+    assert analysis.auto_solver(model) == "jax"
+    assert analyze_layout(lay, solver="auto", method="luo").solver == "exact"

@@ -344,3 +344,61 @@ def test_worker_counts_add_up_and_parent_counts_stay():
                                     not_converged=1, retried=1))
     assert (st.total, st.scored) == (5, 4)
     assert (st.solve_s, st.compile_s, st.compiles, st.not_converged, st.retried) == (1.5, 2.0, 5, 1, 1)
+
+
+def test_auto_split_gives_each_group_to_the_faster_solver(monkeypatch):
+    """``solver="auto"``: a group of layouts that would share one compiled
+    solver goes to HiGHS when its estimated time is below the interior
+    point's (a compile included unless the executables are ready)."""
+    from stablelego_jax import batch
+    from stablelego_jax.batch import auto_split, solve_units
+    from stablelego_jax.model import Params, compile_layout
+
+    lays = [stairs(3)] * 8
+    loaded = [(i, lay, compile_layout(lay, Params())) for i, lay in enumerate(lays)]
+    units = solve_units(loaded, "jax", 64, 1, merge=False)
+    assert len(units) == 1
+    jax_s = units[0].seconds()
+    # small layouts: HiGHS' estimate is below even a warm interior point's
+    assert sum(batch.estimated_seconds(it[2]) for it in loaded) < jax_s + batch.LOAD_S
+    for ready in (lambda *a: False, lambda *a: True):
+        ex, jx = auto_split(units, ready)
+        assert [it[0] for it in ex] == list(range(8)) and jx == []
+    # HiGHS estimated at 2 s a layout: the interior point, compile included
+    monkeypatch.setattr(batch, "estimated_seconds", lambda model: 2.0)
+    ex, jx = auto_split(units, lambda *a: False, compile_s=8.0)
+    assert ex == [] and jx == units
+    # ... unless the compile costs more than HiGHS' 16 s
+    ex, jx = auto_split(units, lambda *a: False, compile_s=60.0)
+    assert len(ex) == 8 and jx == []
+    assert auto_split(units, lambda *a: True, compile_s=60.0)[1] == units  # compiled: no compile to pay
+
+
+def test_auto_scores_small_layouts_with_highs_and_says_so(shard, tmp_path, capsys):
+    """``score --solver auto`` on a few small layouts: HiGHS answers every
+    one (no compile), each line says so, and the answers are the exact
+    solver's."""
+    out = tmp_path / "auto.jsonl"
+    assert main(["score", str(shard / "layouts"), "--out", str(out), "--solver", "auto", "--quiet",
+                 "--jobs", "1"]) == 0
+    err = capsys.readouterr().err
+    assert "compile 0.0 s (0 shapes)" in err and f"({len(SMALL)} given to HiGHS by --solver auto)" in err
+    lines = _lines(out)
+    assert len(lines) == len(SMALL) and all(r["solver"] == "exact" and "iters" not in r for r in lines)
+    for r in lines:
+        ex = analyze(r["file"], solver="exact")
+        assert (r["stable"], r["weakest"]) == (ex.stable, ex.weakest)
+        assert r["scores"] == pytest.approx(ex.scores, abs=1e-6)
+
+
+def test_exact_solver_yields_each_layout_as_it_is_solved():
+    """One process, the exact solver: a results line per layout as soon as
+    it is solved (an interrupted run keeps what was done; the progress bar
+    moves), not one list at the end of the chunk."""
+    from stablelego_jax.batch import iter_analyses
+
+    lays = [stairs(k) for k in range(1, 5)]
+    it = iter_analyses(lays, "exact", jobs=1)
+    first = next(it)
+    assert [i for i, _ in first] == [0] and first[0][1].solver == "exact"
+    assert [[i for i, _ in part] for part in it] == [[1], [2], [3]]

@@ -120,14 +120,24 @@ def test_stairs_exact(capsys):
     assert max(r19["scores"].values()) < 1.0
 
 
-def test_stairs_default_jax_solver(capsys):
+def test_stairs_jax_solver_and_the_auto_default(capsys):
+    """``--solver jax`` answers with the interior point; the default
+    (``auto``) gives these small layouts to HiGHS, faster than a compile,
+    with the same answers."""
     s20, s19 = _example("stair_20.json"), _example("stair_19.json")
-    rc, out, _ = _run(capsys, s20, s19, "--json")
+    rc, out, _ = _run(capsys, s20, s19, "--json", "--solver", "jax")
     assert rc == 0
     r20, r19 = _json_lines(out)
     assert r20["solver"] == "jax" and r19["solver"] == "jax"
     assert r20["stable"] is False and r20["weakest"] == "2"
     assert r19["stable"] is True
+    rc, out, _ = _run(capsys, s20, s19, "--json")
+    assert rc == 0
+    a20, a19 = _json_lines(out)
+    assert a20["solver"] == "exact" and a19["solver"] == "exact"
+    assert (a20["stable"], a20["weakest"], a19["stable"]) == (False, "2", True)
+    for a, j in ((a20, r20), (a19, r19)):
+        assert a["scores"] == pytest.approx(j["scores"], abs=1e-3)
 
 
 def test_dataset_folder_keyed_by_argument(tmp_path, capsys):

@@ -37,7 +37,7 @@ def test_paper_extension_cases_exact(capsys):
 
 def test_paper_extension_cases_jax(capsys):
     paths = [os.path.join(EXT, c) for c in ("pallet_top_moved.json", "lego_single_knob_load.json")]
-    assert cli.main(["analyze", *paths, "--json"]) == 0
+    assert cli.main(["analyze", *paths, "--json", "--solver", "jax"]) == 0
     recs = [json.loads(ln) for ln in capsys.readouterr().out.splitlines()]
     assert [r["stable"] for r in recs] == [False, False]
     assert recs[0]["scores"]["top"] == 1.0 and recs[1]["scores"]["arm"] == 1.0

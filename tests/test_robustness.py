@@ -285,14 +285,14 @@ def test_unconverged_jax_run_is_solved_again_and_says_by_whom(tmp_path, capsys):
     raw_jax = analyze(lay, solver="jax", fallback=False)
     assert not raw_jax.converged  # the case this test is about
     exact = analyze(lay, solver="exact")
-    rc, out, err = _run(capsys, "analyze", lay, "--json")
+    rc, out, err = _run(capsys, "analyze", lay, "--json", "--solver", "jax")
     rec = json.loads(out)
     assert rc == 0 and rec["converged"] is True and rec["solver"] == "exact"
     assert rec["retried"] and rec["retried"][0].startswith("jax")
     assert rec["stable"] == exact.stable and rec["weakest"] == exact.weakest
     assert "not converge" not in err
     res = tmp_path / "r.jsonl"
-    rc, _, err = _run(capsys, "score", lay, "--out", str(res), "--quiet")
+    rc, _, err = _run(capsys, "score", lay, "--out", str(res), "--quiet", "--solver", "jax")
     (line,) = read_results(str(res)).values()
     assert rc == 0 and line["solver"] == "exact" and line["retried"] and line["converged"]
     assert "0 not converged (1 solved again)" in err

@@ -14,9 +14,11 @@ def add_parser(sub, methods) -> None:
                                        "scenes of blocks and rotated bricks)")
     a.add_argument("files", nargs="+", metavar="FILE")
     a.add_argument("--library", help="brick library JSON (default: the StableLego library)")
-    a.add_argument("--solver", choices=["jax", "admm", "exact"], default=None,
-                   help="jax (interior point in JAX, default for --method ours), admm (first-order JAX solver) "
-                        "or exact (HiGHS; the only one for luo and eb)")
+    a.add_argument("--solver", choices=["jax", "admm", "exact", "auto"], default=None,
+                   help="jax (interior point in JAX), admm (first-order JAX solver), "
+                        "exact (HiGHS; the only one for luo and eb) or auto (per group of layouts, whichever of "
+                        "jax and exact is estimated faster, compiling included; each result says which; "
+                        "the default for --method ours)")
     a.add_argument("--method", choices=list(methods), default="ours",
                    help="ours (paper Eq. 9, default), luo (Luo et al. 2015) or eb (enhanced baseline): "
                         "the baselines answer solvable or not (JSON 'solvable')")
@@ -115,8 +117,8 @@ def _analyses(args):
             with one_blas_thread():
                 # worker processes for the exact solver only: JAX workers would start
                 # (and load their executables) afresh for every chunk of CHUNK files
-                jobs = cpu_cores() if solver == "exact" else 1
-                res = analyze_many([loaded[i] for i in good], solver, method=args.method, jobs=jobs)
+                jobs = cpu_cores() if solver in ("exact", "auto") else 1
+                res = analyze_many([loaded[i] for i in good], solver, method=args.method, jobs=jobs, jax_jobs=1)
         except Exception:  # a failure inside the batched call: one file at a time, so only its file fails
             res = []
             for i in good:
@@ -133,7 +135,7 @@ def cmd_analyze(args) -> int:
     from ..formats.ldraw import unsupported_message
     from ..scene import Scene
 
-    if args.method != "ours" and solver_for(args) != "exact":
+    if args.method != "ours" and solver_for(args) not in ("exact", "auto"):
         print(f"error: --method {args.method} runs on the exact solver only (--solver exact)", file=sys.stderr)
         return 2
     many = len(args.files) > 1

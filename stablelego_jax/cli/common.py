@@ -49,8 +49,9 @@ def positive_seconds(v: str) -> float:
 
 
 def solver_for(args) -> str:
-    """--solver as given, else jax for ours and exact for the baselines."""
-    return args.solver or ("jax" if args.method == "ours" else "exact")
+    """--solver as given, else auto for ours (HiGHS or the JAX interior
+    point, whichever is estimated faster) and exact for the baselines."""
+    return args.solver or ("auto" if args.method == "ours" else "exact")
 
 
 def png_target(png: str, path: str, many: bool, used: set, ext: str = ".png") -> str:

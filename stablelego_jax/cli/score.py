@@ -19,9 +19,11 @@ def add_parser(sub, methods, exact_methods) -> None:
     )
     sc.add_argument("inputs", nargs="+", metavar="INPUT")
     sc.add_argument("--out", required=True, metavar="RESULTS", help="JSON-lines results file (appended)")
-    sc.add_argument("--solver", choices=["jax", "admm", "exact"], default=None,
-                    help="jax (interior point in JAX, default for --method ours), admm (first-order JAX solver) "
-                        "or exact (HiGHS; the only one for luo and eb)")
+    sc.add_argument("--solver", choices=["jax", "admm", "exact", "auto"], default=None,
+                    help="jax (interior point in JAX), admm (first-order JAX solver), "
+                         "exact (HiGHS; the only one for luo and eb) or auto (per group of layouts, whichever of "
+                         "jax and exact is estimated faster, compiling included; each result says which; "
+                         "the default for --method ours)")
     sc.add_argument("--method", choices=list(methods), default="ours",
                     help="ours (default), luo or eb (baselines, exact solver; lines get 'solvable')")
     sc.add_argument("--exact-method", choices=list(exact_methods), default="highs",
@@ -56,7 +58,7 @@ def cmd_score(args) -> int:
     if args.batch < 1:
         print("error: --batch must be >= 1", file=sys.stderr)
         return 2
-    if args.method != "ours" and solver_for(args) != "exact":
+    if args.method != "ours" and solver_for(args) not in ("exact", "auto"):
         print(f"error: --method {args.method} runs on the exact solver only (--solver exact)", file=sys.stderr)
         return 2
     from ..batch import cpu_cores, parse_shard
@@ -80,7 +82,8 @@ def cmd_score(args) -> int:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     print(
-        f"{st.scored} scored{f' ({st.left_out} without unsupported parts)' if st.left_out else ''}, "
+        f"{st.scored} scored{f' ({st.left_out} without unsupported parts)' if st.left_out else ''}"
+        f"{f' ({st.auto_exact} given to HiGHS by --solver auto)' if solver_for(args) == 'auto' else ''}, "
         f"{st.skipped} already in {args.out}, {st.errors} errors, "
         f"{st.not_converged} not converged ({st.retried} solved again); solve {st.solve_s:.1f} s, compile {st.compile_s:.1f} s "
         f"({st.compiles} shapes), wall {st.wall_s:.1f} s",

@@ -36,7 +36,7 @@ from ..model import NORMAL, SIDE, ForceModel
 # them costs about half a second, which the JAX path of a short run never needs.
 
 __all__ = ["solve_exact", "least_norm", "least_norm_optimum", "solve_qp", "ExactResult", "EXACT_METHODS",
-           "equilibrium_matrix", "lp_arrays"]
+           "equilibrium_matrix", "lp_arrays", "estimated_seconds"]
 
 
 class ExactResult(dict):
@@ -65,6 +65,21 @@ def equilibrium_matrix(model: ForceModel):
         (np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(6 * n, m)
     )
     return A.tocsr()
+
+
+def estimated_seconds(model: ForceModel) -> float:
+    """Rough seconds :func:`solve_exact` (canonical, the default) takes on
+    one core for ``model``, from its real column count m:
+    ``3.62e-4 m^0.817 + 9.57e-11 m^2.698``. Fitted (least squares in log
+    time) to 225 layouts of 1-779 bricks (every 5th of
+    ``benchmarks/results/small500``, every 4th of ``shard500``; 2026-11-26,
+    the 2-core CPU of BENCHMARKS.md, ``score --solver exact --jobs 1``):
+    measured / model 0.71-1.43 (10th-90th percentile), 717 s measured
+    against 678 s modelled in all. The second term is the large blobs
+    (600-800 bricks, 24000-37000 columns), where the canonical stage takes
+    115-137 s. Used by ``solver="auto"`` to pick a solver."""
+    m = float(model.m)
+    return 3.62e-4 * m ** 0.817 + 9.57e-11 * m ** 2.698
 
 
 #: HiGHS methods of scipy.optimize.linprog that solve_exact accepts.
