@@ -12,6 +12,9 @@ Configurations (``--configs``):
   jax-2proc      JAX, 2 processes at once (``--shard 0/2`` and ``1/2``, ``--jobs 1`` each)
   exact-1        HiGHS, one process
   exact-2        HiGHS, ``--jobs 2`` (a pool of 2 worker processes)
+  auto-2         ``--solver auto --jobs 2``: each group of layouts by whichever of JAX and HiGHS
+                 is estimated faster (HiGHS on a pool of 2 workers, JAX in a pool of 2); the run
+                 records how many layouts each solver answered ("by_solver")
   vertex-2       HiGHS' optimal vertex without the canonical (least-norm) stage, ``--jobs 2``:
                  ``score_files(..., params=Params(ridge=0))`` in a child process, as no
                  command-line flag turns the canonical stage off; labels are the same
@@ -54,6 +57,7 @@ CONFIGS = {
     "jax-2proc": dict(solver="jax", procs=2, jobs=1, devices="1"),
     "exact-1": dict(solver="exact", procs=1, jobs=1),
     "exact-2": dict(solver="exact", procs=1, jobs=2),
+    "auto-2": dict(solver="auto", procs=1, jobs=2, devices="1"),
     "vertex-2": dict(solver="exact", procs=1, jobs=2, vertex=True),
 }
 VERTEX = """
@@ -84,7 +88,7 @@ def run_config(name: str, inputs: list, work: str, cache: str, run: int) -> dict
         else:
             cmd = [sys.executable, "-m", "stablelego_jax.cli.main", "score", *inputs, "--out", out, "--quiet",
                    "--solver", cfg["solver"], "--jobs", str(cfg["jobs"])]
-            if cfg["solver"] == "jax":
+            if cfg["solver"] in ("jax", "auto"):
                 cmd += ["--devices", cfg["devices"]]
             if cfg["procs"] > 1:
                 cmd += ["--shard", f"{k}/{cfg['procs']}"]
@@ -109,6 +113,10 @@ def run_config(name: str, inputs: list, work: str, cache: str, run: int) -> dict
         # (a pool's workers are not counted)
         rec["peak_rss_mb"] = max(rec["peak_rss_mb"], ru.ru_maxrss / 1024.0)
     rec["wall_s"] = time.perf_counter() - t0
+    by: dict = {}
+    for r in results(outs).values():
+        by[r.get("solver", "error")] = by.get(r.get("solver", "error"), 0) + 1
+    rec["by_solver"] = by
     return rec
 
 
