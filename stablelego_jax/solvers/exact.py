@@ -70,16 +70,17 @@ def equilibrium_matrix(model: ForceModel):
 def estimated_seconds(model: ForceModel) -> float:
     """Rough seconds :func:`solve_exact` (canonical, the default) takes on
     one core for ``model``, from its real column count m:
-    ``3.62e-4 m^0.817 + 9.57e-11 m^2.698``. Fitted (least squares in log
-    time) to 225 layouts of 1-779 bricks (every 5th of
+    ``9.94e-4 m^0.696 + 7.61e-9 m^2.211``. Fitted (least squares in log
+    time) to 225 layouts of 2-779 bricks (every 5th of
     ``benchmarks/results/small500``, every 4th of ``shard500``; 2026-11-26,
-    the 2-core CPU of BENCHMARKS.md, ``score --solver exact --jobs 1``):
-    measured / model 0.71-1.43 (10th-90th percentile), 717 s measured
-    against 678 s modelled in all. The second term is the large blobs
-    (600-800 bricks, 24000-37000 columns), where the canonical stage takes
-    115-137 s. Used by ``solver="auto"`` to pick a solver."""
+    the 2-core CPU of BENCHMARKS.md, ``score --solver exact --jobs 1``,
+    Clarabel on one thread): measured / model 0.70-1.43 (10th-90th
+    percentile), 384.5 s measured against 396.4 s modelled in all. The
+    second term is the large blobs (600-800 bricks, 24000-37000 columns),
+    where the canonical stage takes 51-67 s. Used by ``solver="auto"`` to
+    pick a solver."""
     m = float(model.m)
-    return 3.62e-4 * m ** 0.817 + 9.57e-11 * m ** 2.698
+    return 9.94e-4 * m ** 0.696 + 7.61e-9 * m ** 2.211
 
 
 #: HiGHS methods of scipy.optimize.linprog that solve_exact accepts.
@@ -191,6 +192,11 @@ def solve_qp(c, A_eq, b_eq, A_ub, b_ub, bounds, p_diag, max_iter: int = 200):
     cones = [clarabel.ZeroConeT(A_eq.shape[0]), clarabel.NonnegativeConeT(A.shape[0] - A_eq.shape[0])]
     st = clarabel.DefaultSettings()
     st.verbose = False
+    # one thread: Clarabel's default (one per core) left two worker threads
+    # spinning in the kernel on large layouts (a 746-brick blob: 162-180 s,
+    # 89-97 s of it system time; with one thread 65.5 s, 0.35 s system), and
+    # in a pool of one worker per core they take the other workers' cores
+    st.max_threads = 1
     st.tol_gap_abs = st.tol_gap_rel = st.tol_feas = 1e-10
     st.max_iter = int(max_iter)
     sol = clarabel.DefaultSolver(sp.diags(p_diag).tocsc(), np.asarray(c, float), A, b, cones, st).solve()
