@@ -117,22 +117,28 @@ def solve_jax(model: ForceModel, opts=None):
     from .solvers.problem import Solution
 
     opts = opts or ipm.IPMOptions()
-    name, padded, arrays, _ = _single_problem(model, opts)
+    name, padded, arrays = _single_problem(model, opts)
     exe = compiled(name, solver_fn(model.params, opts), (model.params, opts), arrays)
     return Solution(*jax.device_get(exe(*arrays))), padded
 
 
-def _single_problem(model: ForceModel, opts):
-    """(executable name, padded model, problem arrays, (bucket, padded
-    columns)) of :func:`solve_jax`."""
+def _single_plan(model: ForceModel) -> tuple:
+    """(bucket, padded columns, padded contact slots) of :func:`solve_jax`."""
+    from .solvers.problem import MIN_COLUMNS, MIN_SLOTS, fit_plan, rung, solve_plan
+
+    m_pad, p_pad = rung(model.m, MIN_COLUMNS), rung(model.group.shape[1], MIN_SLOTS)
+    return fit_plan(model, solve_plan(model), m_pad), m_pad, p_pad
+
+
+def _single_problem(model: ForceModel, opts, plan: tuple | None = None):
+    """(executable name, padded model, problem arrays) of :func:`solve_jax`
+    (``plan``: :func:`_single_plan`'s, if computed already)."""
     from .solvers import admm
-    from .solvers.problem import MIN_COLUMNS, MIN_SLOTS, fit_plan, plan_problem, rung, solve_plan
+    from .solvers.problem import plan_problem
 
     name = "admm" if isinstance(opts, admm.SolverOptions) else "ipm"
-    m_pad, p_pad = rung(model.m, MIN_COLUMNS), rung(model.group.shape[1], MIN_SLOTS)
-    key = fit_plan(model, solve_plan(model), m_pad)
-    padded, prob = plan_problem(model, key, m_pad, p_pad)
-    return name, padded, tuple(a for a in prob if a is not None), (key, m_pad)
+    padded, prob = plan_problem(model, *(plan or _single_plan(model)))
+    return name, padded, tuple(a for a in prob if a is not None)
 
 
 #: Seconds the JAX solver's first answer in a process costs beyond the
@@ -158,11 +164,12 @@ def auto_solver(model: ForceModel) -> str:
     from .solvers.problem import LOAD_S, SINGLE_COMPILE_S, plan_seconds
 
     exact_s = estimated_seconds(model)
-    opts = ipm.IPMOptions()
-    name, _, arrays, (key, m_pad) = _single_problem(model, opts)
-    jax_s = JAX_START_S + plan_seconds(key, m_pad) + LOAD_S
-    if exact_s < jax_s:  # cheaper than the check below
+    plan = _single_plan(model)
+    jax_s = JAX_START_S + plan_seconds(*plan[:2]) + LOAD_S
+    if exact_s < jax_s:  # no need to pad the problem for the check below
         return "exact"
+    opts = ipm.IPMOptions()
+    name, _, arrays = _single_problem(model, opts, plan)
     specs = [jax.ShapeDtypeStruct(np.shape(a), np.result_type(a)) for a in arrays]
     if not available(name, (model.params, opts), specs):
         jax_s += SINGLE_COMPILE_S - LOAD_S
