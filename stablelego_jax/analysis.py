@@ -18,10 +18,33 @@ from .solvers.exact import solve_exact
 # of a second, which an exact-solver run never needs.
 
 __all__ = ["Analysis", "analyze", "analyze_layout", "analyze_exact", "analyze_baseline", "make_analysis", "error_message",
-           "solve_jax", "solver_fn", "resolve_unconverged", "LONGER_RUN", "auto_solver", "JAX_START_S"]
+           "solve_jax", "solver_fn", "resolve_unconverged", "LONGER_RUN", "auto_solver", "JAX_START_S",
+           "SOLVERS", "pick_solver"]
 
 #: A JAX run stopped at its iteration cap is tried again with this many times the cap.
 LONGER_RUN = 4
+
+#: The solvers of :func:`analyze_layout` and of the batch engine: the JAX
+#: interior point, ADMM, HiGHS, and "auto" (whichever of the interior point
+#: and HiGHS is estimated faster: :func:`auto_solver` for one layout,
+#: ``batch.auto_split`` per group of layouts).
+SOLVERS = ("jax", "admm", "exact", "auto")
+
+
+def pick_solver(solver: str, method: str = "ours") -> str:
+    """The solver that answers ``method`` when ``solver`` is asked for: a
+    baseline method ("luo", "eb") runs on the exact solver only, so "auto"
+    becomes "exact" there. ValueError (one line) for an unknown solver or
+    method, or a baseline asked of a JAX solver."""
+    if solver not in SOLVERS:
+        raise ValueError(f"unknown solver {solver!r} (expected one of {', '.join(SOLVERS)})")
+    if method not in METHODS:
+        raise ValueError(f"unknown method {method!r} (expected one of {', '.join(METHODS)})")
+    if method == "ours":
+        return solver
+    if solver not in ("exact", "auto"):
+        raise ValueError(f"method {method!r} runs on the exact solver only (solver 'exact' or 'auto'), not {solver!r}")
+    return "exact"
 
 
 @dataclasses.dataclass
@@ -254,18 +277,13 @@ def analyze_layout(
     "luo" / "eb" (exact solver only; see :mod:`~stablelego_jax.solvers.baselines`).
     ``fallback``: a JAX run that did not converge is solved again
     (:func:`resolve_unconverged`); False returns it as it is."""
-    if method not in METHODS:
-        raise ValueError(f"unknown method {method!r} (expected one of {', '.join(METHODS)})")
-    if method != "ours" and solver not in ("exact", "auto"):
-        raise ValueError(f"method {method!r} runs on the exact solver only (solver='exact'), not {solver!r}")
+    solver = pick_solver(solver, method)
     t0 = time.perf_counter()
     model = compile_layout(layout, params)
     if solver == "auto":
-        solver = "exact" if method != "ours" else auto_solver(model)
-    if method != "ours" or solver == "exact":
+        solver = auto_solver(model)
+    if solver == "exact":
         return analyze_exact(layout, model, method, t0, exact_method, exact_scale)
-    if solver not in ("jax", "admm"):
-        raise ValueError(f"unknown solver {solver!r} (expected 'jax', 'admm', 'exact' or 'auto')")
     if solver == "admm":
         from .solvers.admm import SolverOptions
 

@@ -32,7 +32,7 @@ from typing import Iterable, Iterator, Sequence
 import jax
 import numpy as np
 
-from .analysis import analyze_exact, error_message, make_analysis, resolve_unconverged
+from .analysis import analyze_exact, error_message, make_analysis, pick_solver, resolve_unconverged
 from .blas import lapack_pool_deadlock, one_blas_thread
 from .files import atomic_write, atomic_write_text, cut, read_text
 from .formats.dataset import score_grid
@@ -67,12 +67,7 @@ from .solvers.problem import (
 __all__ = ["find_layouts", "read_results", "ScoreStats", "iter_analyses", "analyze_many", "score_files",
            "batch_solver_fn", "batch_sizes", "plan_bytes", "parse_shard", "in_shard", "cpu_cores",
            "RESULT_PREFIX", "SolveUnit", "solve_units", "compiled_ready", "assign_units", "POOL_MIN",
-           "SOLVERS", "auto_split"]
-
-#: Solvers of :func:`iter_analyses` and :func:`score_files`: the JAX interior
-#: point, ADMM, HiGHS, and "auto" (per group of layouts, whichever of the
-#: interior point and HiGHS is estimated faster: :func:`auto_split`).
-SOLVERS = ("jax", "admm", "exact", "auto")
+           "auto_split"]
 
 LAYOUT_EXTS = (".json", ".txt", ".ldr")
 # files that sit beside StableLego layouts but are not layouts
@@ -347,10 +342,7 @@ def iter_analyses(
     longer run, then the exact solver; its ``solver`` says which answered,
     ``retried`` what did not converge); False yields it as it is.
     """
-    if solver not in SOLVERS:
-        raise ValueError(f"unknown solver {solver!r} (expected one of {', '.join(SOLVERS)})")
-    if method != "ours" and solver not in ("exact", "auto"):
-        raise ValueError(f"method {method!r} runs on the exact solver only")
+    solver = pick_solver(solver, method)
     st = stats if stats is not None else ScoreStats()
     loaded, bad = [], []
     for i, lay in enumerate(layouts):
@@ -360,8 +352,6 @@ def iter_analyses(
             bad.append((i, exc))
     if bad:
         yield bad
-    if solver == "auto" and method != "ours":
-        solver = "exact"
     if solver == "exact":
         yield from _exact_parts(loaded, jobs, method, exact_method, exact_scale, st)
         return
@@ -740,10 +730,7 @@ def _score_files(
     are skipped. The solving is :func:`iter_analyses`; lines are appended and
     flushed per solver call.
     """
-    if solver not in SOLVERS:
-        raise ValueError(f"unknown solver {solver!r} (expected one of {', '.join(SOLVERS)})")
-    if method != "ours" and solver not in ("exact", "auto"):
-        raise ValueError(f"method {method!r} runs on the exact solver only")
+    solver = pick_solver(solver, method)
     t_run = time.perf_counter()
     if solver != "exact":
         _device_count(devices)  # refuse a bad count before reading anything

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from conftest import EXAMPLES
-from stablelego_jax.analysis import Analysis, analyze, analyze_baseline, analyze_layout, error_message
+from stablelego_jax.analysis import Analysis, analyze, analyze_baseline, analyze_layout, error_message, pick_solver
 from stablelego_jax.formats.reader import load_layout
 from stablelego_jax.layout import LayoutError
 from stablelego_jax.model import compile_layout
@@ -40,6 +40,19 @@ def test_baseline_analysis_is_built_here_from_the_solvers_result():
         analyze_layout(lay, solver="jax", method="luo")
     with pytest.raises(ValueError, match="unknown solver"):
         analyze_layout(lay, solver="cplex")
+
+
+def test_pick_solver_is_the_one_rule_for_solver_and_method():
+    assert pick_solver("jax") == "jax" and pick_solver("auto") == "auto"
+    # a baseline runs on the exact solver: auto picks it, exact keeps it
+    assert pick_solver("auto", "luo") == "exact" and pick_solver("exact", "eb") == "exact"
+    for solver in ("jax", "admm"):
+        with pytest.raises(ValueError, match=f"exact solver only .*not '{solver}'"):
+            pick_solver(solver, "eb")
+    with pytest.raises(ValueError, match="unknown solver 'cplex'"):
+        pick_solver("cplex")
+    with pytest.raises(ValueError, match="unknown method 'bogus'"):
+        pick_solver("exact", "bogus")
 
 
 def test_error_message_names_the_file_once(tmp_path):

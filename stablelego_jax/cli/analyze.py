@@ -132,11 +132,14 @@ def _analyses(args):
 
 
 def cmd_analyze(args) -> int:
+    from ..analysis import pick_solver
     from ..formats.ldraw import unsupported_message
     from ..scene import Scene
 
-    if args.method != "ours" and solver_for(args) not in ("exact", "auto"):
-        print(f"error: --method {args.method} runs on the exact solver only (--solver exact)", file=sys.stderr)
+    try:
+        pick_solver(solver_for(args), args.method)
+    except ValueError as exc:
+        print(f"error: {exc}", file=sys.stderr)
         return 2
     many = len(args.files) > 1
     failed = 0

@@ -53,13 +53,16 @@ def add_parser(sub, methods, exact_methods) -> None:
 
 
 def cmd_score(args) -> int:
+    from ..analysis import pick_solver
     from ..batch import score_files
 
     if args.batch < 1:
         print("error: --batch must be >= 1", file=sys.stderr)
         return 2
-    if args.method != "ours" and solver_for(args) not in ("exact", "auto"):
-        print(f"error: --method {args.method} runs on the exact solver only (--solver exact)", file=sys.stderr)
+    try:
+        pick_solver(solver_for(args), args.method)
+    except ValueError as exc:
+        print(f"error: {exc}", file=sys.stderr)
         return 2
     from ..batch import cpu_cores, parse_shard
 
