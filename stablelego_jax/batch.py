@@ -368,7 +368,7 @@ def iter_analyses(
     n_jax = sum(len(u.items) for u in units)
     jobs = min(max(1, int(jobs if jax_jobs is None else jax_jobs)), max(len(units), 1))
     if jobs > 1 and n_dev == 1 and n_jax >= POOL_MIN:
-        yield from _jax_pool(units, jobs, solver, params, opts, first_cap, fallback, st)
+        yield from _jax_pool(units, jobs, solver, params, opts, first_cap, fallback, st, ready)
         return
     for unit in units:
         yield from _solve_unit(unit, solver, params, opts, n_dev, first_cap, fallback, st)
@@ -441,7 +441,11 @@ def piece_sizes(key: tuple, m_pad: int, count: int, batch: int, n_dev: int) -> l
     """Padded batch size of each piece when ``count`` layouts of bucket
     ``key`` with ``m_pad`` columns are solved at most ``batch`` at a time on
     ``n_dev`` devices (:func:`batch_sizes`, :func:`~stablelego_jax.solvers.problem.batch_rung`)."""
-    bsz = batch_sizes(plan_bytes(key, m_pad), batch, n_dev)
+    return _rungs(batch_sizes(plan_bytes(key, m_pad), batch, n_dev), count, n_dev)
+
+
+def _rungs(bsz: int, count: int, n_dev: int) -> list:
+    """Padded size of each piece of ``count`` layouts cut ``bsz`` at a time."""
     return [batch_rung(min(bsz, count - b0), n_dev, bsz) for b0 in range(0, count, bsz)]
 
 
@@ -452,7 +456,7 @@ def _pieces(items: list, key: tuple, batch: int, n_dev: int, crows: dict) -> tup
     p_pad = rung(max(it[2].group.shape[1] for it in items), MIN_SLOTS)
     c_pad = rung(max(crows[it[0]] for it in items), MIN_CHUNKS)
     bsz = batch_sizes(plan_bytes(key, m_pad), batch, n_dev)
-    return m_pad, p_pad, c_pad, bsz, set(piece_sizes(key, m_pad, len(items), batch, n_dev))
+    return m_pad, p_pad, c_pad, bsz, set(_rungs(bsz, len(items), n_dev))
 
 
 def solve_units(loaded, solver: str, batch: int, n_dev: int, merge: bool = True, ready=None) -> list:
@@ -504,10 +508,14 @@ def _batch_name(opts) -> tuple:
 def compiled_ready(params: Params, opts, n_dev: int):
     """The ``ready`` test of :func:`solve_units` for the batched solver of
     ``opts`` on ``n_dev`` devices: every batch size of the bucket has its
-    executable in this process or on disk (:func:`~stablelego_jax.solvers.compiled.available`)."""
+    executable in this process or on disk (:func:`~stablelego_jax.solvers.compiled.available`).
+    Each answer is kept (one planning pass asks for a bucket in
+    :func:`solve_units` and again in :func:`auto_split`; ``model`` only
+    gives the arrays' dtypes and trailing shapes, set by the padding)."""
     name, o_key = _batch_name(opts)
+    seen: dict = {}
 
-    def ready(key, m_pad, p_pad, c_pad, sizes, model) -> bool:
+    def look(key, m_pad, p_pad, c_pad, sizes, model) -> bool:
         arrays = [a for a in plan_problem(model, key, m_pad, p_pad, c_pad)[1] if a is not None]
         for size in sizes:
             specs = [jax.ShapeDtypeStruct((size,) + np.shape(a), np.result_type(a)) for a in arrays]
@@ -516,6 +524,12 @@ def compiled_ready(params: Params, opts, n_dev: int):
             if not available(name, (params, o_key, n_dev), specs, export=n_dev == 1):
                 return False
         return True
+
+    def ready(key, m_pad, p_pad, c_pad, sizes, model) -> bool:
+        tag = (key, m_pad, p_pad, c_pad, frozenset(sizes))
+        if tag not in seen:
+            seen[tag] = look(key, m_pad, p_pad, c_pad, sizes, model)
+        return seen[tag]
 
     return ready
 
@@ -594,17 +608,24 @@ def _unit_results(unit: SolveUnit, solver, params, opts, first_cap, fallback) ->
     return out, st
 
 
-def assign_units(units: Sequence[SolveUnit], jobs: int, compile_s: float = COMPILE_S) -> list:
+def assign_units(units: Sequence[SolveUnit], jobs: int, compile_s: float = COMPILE_S, ready=None) -> list:
     """Worker index of each unit: longest first, each to the worker that
     would finish it soonest, a worker that has not compiled the unit's
     bucket paying ``compile_s`` for it (so a bucket's pieces stay on one
-    worker unless splitting it pays)."""
+    worker unless splitting it pays), or ``LOAD_S`` where ``ready`` (see
+    :func:`solve_units`; one device per worker) says its executable is
+    compiled already, on disk."""
     load = [0.0] * jobs
     shapes: list = [set() for _ in range(jobs)]
     out = [0] * len(units)
     for u in sorted(range(len(units)), key=lambda k: -units[k].seconds()):
-        key = (units[u].key, units[u].m_pad, units[u].p_pad)
-        cost = [load[w] + units[u].seconds() + (0.0 if key in shapes[w] else compile_s) for w in range(jobs)]
+        un = units[u]
+        key = (un.key, un.m_pad, un.p_pad, un.c_pad)
+        new = compile_s
+        if ready is not None and ready(un.key, un.m_pad, un.p_pad, un.c_pad, {batch_rung(len(un.items), 1, un.bsz)},
+                                       un.items[0][2]):
+            new = LOAD_S
+        cost = [load[w] + un.seconds() + (0.0 if key in shapes[w] else new) for w in range(jobs)]
         w = min(range(jobs), key=cost.__getitem__)
         load[w] = cost[w]
         shapes[w].add(key)
@@ -612,12 +633,13 @@ def assign_units(units: Sequence[SolveUnit], jobs: int, compile_s: float = COMPI
     return out
 
 
-def _jax_pool(units, jobs, solver, params, opts, first_cap, fallback, st) -> Iterator[list]:
+def _jax_pool(units, jobs, solver, params, opts, first_cap, fallback, st, ready=None) -> Iterator[list]:
     """The units over ``jobs`` spawned worker processes, one device (and one
     XLA pool thread) each; every worker solves the units
-    :func:`assign_units` gives it, in order, so it compiles each of its
-    shapes once. Yields each unit's results as it finishes."""
-    where = assign_units(units, jobs)
+    :func:`assign_units` gives it (``ready``: which shapes are on disk), in
+    order, so it compiles each of its shapes once. Yields each unit's
+    results as it finishes."""
+    where = assign_units(units, jobs, ready=ready)
     ctx = multiprocessing.get_context("spawn")
     pools = [concurrent.futures.ProcessPoolExecutor(1, mp_context=ctx, initializer=_ignore_sigint)
              for _ in range(jobs)]

@@ -196,6 +196,7 @@ def test_compiled_buckets_are_not_merged_away(monkeypatch, tmp_path):
     """A bucket whose batched solver is compiled already (here: in this
     process) is solved in its own shape, not padded into a larger bucket;
     a bucket with nothing compiled merges as before."""
+    from stablelego_jax import batch
     from stablelego_jax.batch import analyze_many, compiled_ready, solve_units
     from stablelego_jax.model import Params, compile_layout
     from stablelego_jax.solvers import compiled, ipm
@@ -212,8 +213,16 @@ def test_compiled_buckets_are_not_merged_away(monkeypatch, tmp_path):
     units = solve_units(loaded, "jax", 64, 1, ready=ready)
     assert len(units) == 1 and units[0].key != small  # merged: one compile instead of two
     analyze_many(lays[:32], "jax", merge=False)  # compiles the small bucket's solver
+    ready = compiled_ready(Params(), ipm.IPMOptions(), 1)  # a new planning pass
     units = solve_units(loaded, "jax", 64, 1, ready=ready)
     assert sorted(u.key for u in units) == sorted({small, units[-1].key}) and len(units) == 2
+    # within one pass a bucket is looked up once (solve_units, then auto_split)
+    calls = []
+    real = batch.available
+    monkeypatch.setattr(batch, "available", lambda *a, **k: calls.append(a[0]) or real(*a, **k))
+    again = solve_units(loaded, "jax", 64, 1, ready=ready)
+    assert [(u.key, u.m_pad, len(u.items)) for u in again] == [(u.key, u.m_pad, len(u.items)) for u in units]
+    assert calls == []
     compiled.clear()
 
 
@@ -321,6 +330,26 @@ def test_assign_units_keeps_a_bucket_together_unless_splitting_pays():
     assert assign_units(large[:1] + small, 2) == [0, 1, 1, 1, 1]
     assert sorted(assign_units(large, 2)) == [0, 0, 1, 1]  # splitting the costly bucket pays
     assert assign_units(small, 1) == [0, 0, 0, 0]
+
+
+def test_assign_units_charges_a_load_for_a_shape_on_disk():
+    """A shape whose executable is on disk costs a worker a load, not a
+    compile, so a cheap bucket's pieces spread once a worker falls behind."""
+    from stablelego_jax.batch import SolveUnit, assign_units
+
+    class Timed(SolveUnit):  # bsz stands for the unit's seconds
+        def seconds(self):
+            return float(self.bsz)
+
+    big = Timed(("layered", 16, 16), 512, 8, 11, [(0, None, None)])
+    pieces = [Timed(("dense", 8), 64, 8, 2, [(k, None, None)]) for k in range(1, 8)]
+    # compiling: the 7 pieces (14 s) stay on the free worker; a second compile never pays
+    assert assign_units([big] + pieces, 2) == [0] + [1] * 7
+    # on disk: the big unit costs 11.4 s, the free worker passes it after 6 pieces
+    asked = []
+    warm = assign_units([big] + pieces, 2, ready=lambda *a: asked.append(a[:4]) or True)
+    assert warm == [0] + [1] * 6 + [0]
+    assert asked[0] == (("layered", 16, 16), 512, 8, None)
 
 
 def test_jax_pool_gives_the_same_answers():
