@@ -659,8 +659,8 @@ def merge_plans(sizes: dict, compile_s: float = COMPILE_S, ready=frozenset(), m_
     the next power of two, or adds a batch size, pays for it. The smallest
     buckets move first, each to the cheapest target. A bucket in ``ready``
     (its solvers compiled already: in this process or on disk) costs only
-    ``load_s`` per batch size it had. With ``compile_s`` = 0 nothing
-    moves."""
+    ``load_s`` per batch size it had. With ``compile_s`` = 0 and no
+    bucket ready nothing moves."""
     sizes = {k: list(v) for k, v in sizes.items()}
     m_pads = dict(m_pads) if m_pads else {k: None for k in sizes}
     target = {k: k for k in sizes}
@@ -674,9 +674,7 @@ def merge_plans(sizes: dict, compile_s: float = COMPILE_S, ready=frozenset(), m_
     def cost(k, m, c):
         """Estimated seconds of bucket ``k`` with ``c`` layouts padded to ``m`` columns."""
         p = cut(k, m, c)
-        built = sum(load_s if s in have[k] else compile_s for s in set(p)) if pieces else (
-            min(compile_s, load_s) if k in ready else compile_s)
-        return sum(p) * plan_seconds(k, m) + built
+        return sum(p) * plan_seconds(k, m) + sum(load_s if s in have[k] else compile_s for s in set(p))
 
     for k in sorted(sizes, key=lambda k: (count[k], plan_seconds(k, m_pads[k]))):
         best, best_extra = None, 0.0
