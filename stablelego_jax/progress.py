@@ -10,10 +10,14 @@ from __future__ import annotations
 
 import sys
 import time
+import weakref
 
 from tqdm import tqdm
 
-__all__ = ["Progress"]
+__all__ = ["Progress", "end_bars"]
+
+# bars on screen, for :func:`end_bars`
+_LIVE: "weakref.WeakSet[Progress]" = weakref.WeakSet()
 
 
 class Progress:
@@ -31,6 +35,9 @@ class Progress:
             tty = bool(self.stream.isatty())
         except (AttributeError, ValueError):
             tty = False
+        self.tty = tty
+        if self.enabled:
+            _LIVE.add(self)
         self.bar = tqdm(total=self.total, file=self.stream, unit=f" {unit}", disable=not self.enabled,
                         mininterval=0.5 if tty else 10.0, ascii=not tty, dynamic_ncols=tty, leave=False)
 
@@ -53,7 +60,26 @@ class Progress:
         self.bar.update(int(k))
 
     def close(self) -> None:
+        _LIVE.discard(self)
         self.bar.close()
         if self.enabled:
             self.stream.write(f"done: {self.count}/{self.total} in {time.perf_counter() - self.t0:.1f} s\n")
             self.stream.flush()
+
+
+def end_bars() -> None:
+    """End the line of every bar on screen, so that a message printed next
+    (the commands' Ctrl-C line) starts a line of its own: on a terminal
+    the bar is cleared, elsewhere (a log) its last drawing is ended with a
+    newline. Takes no lock (it may run while the main thread is stopped
+    anywhere); the bars stay open."""
+    for p in list(_LIVE):
+        try:
+            if p.tty:
+                p.bar.clear(nolock=True)
+            else:
+                p.stream.write("\n")
+            p.stream.flush()
+        except (OSError, ValueError):  # a closed stream: nothing to end
+            pass
+        _LIVE.discard(p)

@@ -35,3 +35,36 @@ def test_disabled_counts_silently():
     p.advance(5)
     p.close()
     assert p.count == 5 and s.getvalue() == ""
+
+
+class _Tty(io.StringIO):
+    def isatty(self):
+        return True
+
+
+def test_end_bars_ends_the_bar_line_before_a_message():
+    """Ctrl-C's line must not be glued to a half-drawn bar: off a terminal
+    the bar's last drawing gets its newline, on one the bar is cleared."""
+    from stablelego_jax.progress import end_bars
+
+    log, quiet = io.StringIO(), io.StringIO()
+    bars = [Progress(10, stream=log), Progress(10, stream=quiet, enabled=False)]
+    for b in bars:
+        b.advance(3)
+        b.bar.refresh()
+    assert not log.getvalue().endswith("\n") and "3/10" in log.getvalue()
+    end_bars()
+    assert log.getvalue().endswith("\n") and log.getvalue().count("\n") == 1
+    assert quiet.getvalue() == ""  # a disabled bar drew nothing and ends nothing
+    end_bars()  # once only: nothing more is written
+    assert log.getvalue().count("\n") == 1
+    for b in bars:
+        b.close()
+    tty = _Tty()
+    bar = Progress(10, stream=tty)
+    bar.advance(3)
+    bar.bar.refresh()
+    assert "3/10" in tty.getvalue().split("\r")[-1]
+    end_bars()
+    assert tty.getvalue().split("\r")[-1].strip() == ""  # the bar's line is blank again
+    bar.close()

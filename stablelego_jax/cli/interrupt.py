@@ -23,14 +23,19 @@ import sys
 import threading
 
 from ..files import remove_temporaries
+from ..progress import end_bars
 
 __all__ = ["prompt_interrupt", "end_process"]
 
 
-def _flush_streams(timeout_s: float) -> None:
+def _flush_streams(timeout_s: float, first=None) -> None:
     """Flush stdout and stderr from a helper thread, giving up after
-    ``timeout_s`` (a stream whose lock the stuck main thread holds)."""
+    ``timeout_s`` (a stream whose lock the stuck main thread holds);
+    ``first()`` (if given) runs in that thread before the flush."""
     def flush():
+        if first is not None:
+            with contextlib.suppress(Exception):
+                first()
         for s in (sys.stdout, sys.stderr):
             with contextlib.suppress(Exception):
                 s.flush()
@@ -46,7 +51,7 @@ def end_process(code: int, message: str | None = None) -> None:
     (if any) on stderr, and exit without unwinding or waiting for native
     work in flight (an interrupted XLA computation would otherwise hold the
     interpreter's shutdown until it ends: minutes on a large layout)."""
-    _flush_streams(1.0)
+    _flush_streams(1.0, end_bars if message else None)
     remove_temporaries()
     if message:
         with contextlib.suppress(OSError):

@@ -44,6 +44,7 @@ def main(argv=None) -> int:
     inside a long XLA or HiGHS call (:mod:`.interrupt`); called with an
     ``argv`` list (from Python), it returns 130."""
     from ..blas import inline_cpu_dispatch
+    from ..progress import end_bars
     from .interrupt import end_process, prompt_interrupt
 
     args = build_parser().parse_args(argv)
@@ -61,6 +62,7 @@ def main(argv=None) -> int:
                     return err
             return args.func(args)
     except KeyboardInterrupt:
+        end_bars()
         print(message, file=sys.stderr, flush=True)
         if argv is None:  # the program itself: end now, not when native work in flight winds down
             end_process(130)
