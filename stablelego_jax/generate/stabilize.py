@@ -269,12 +269,14 @@ def _same_bricks(a: Layout, b: Layout) -> int:
 
 
 class _Gradient:
-    """The gradient move's optimiser: jitted (value, grad) of fidelity + lam
-    x stability over the padded soft problem, compiled once per ladder shape."""
+    """The gradient move's optimiser: one jitted Adam step (optax) on
+    fidelity + lam x stability over the padded soft problem, compiled once
+    per ladder shape."""
 
     def __init__(self, opts: StabilizeOptions):
         import jax
         import jax.numpy as jnp
+        import optax
 
         from ..loss import LossOptions, stability_loss
         from ..soft import SoftProblem
@@ -282,6 +284,7 @@ class _Gradient:
 
         lo = LossOptions(params=opts.params)
         self.opts = opts
+        self.adam = adam = optax.adam(opts.lr)
         self.fns = {}
         self.steps_done = 0  # soft solves (each a loss and its gradient)
 
@@ -297,7 +300,12 @@ class _Gradient:
                 fid = jnp.where(real, (cov - 1.0) ** 2, 0.0).sum()
                 return fid + lam * stability_loss(w, None, prob, opts=lo)
 
-            return jax.jit(jax.value_and_grad(f))
+            def step(theta, state, fixed, inc, lam, *arrays):
+                g = jnp.nan_to_num(jax.grad(f)(theta, fixed, inc, lam, *arrays))
+                upd, state = adam.update(g, state)
+                return optax.apply_updates(theta, upd), state
+
+            return jax.jit(step)
 
         self.make = make
 
@@ -347,19 +355,15 @@ class _Gradient:
             self.fns[key] = self.make(fields)
         fn = self.fns[key]
         arrays = tuple(getattr(prob, f) for f in fields)
-        m = np.zeros(n_pad)
-        v = np.zeros(n_pad)
-        b1, b2, lr = 0.9, 0.999, self.opts.lr
+        state = self.adam.init(jax.numpy.asarray(theta))
         with one_blas_thread():
             for t in range(1, self.opts.steps + 1):
                 if t > 1 and time.perf_counter() > deadline:
                     break
                 self.steps_done += 1
-                _, g = jax.device_get(fn(theta, fixed, inc, np.float64(self.opts.lam), *arrays))
-                g = np.nan_to_num(np.asarray(g))
-                m = b1 * m + (1 - b1) * g
-                v = b2 * v + (1 - b2) * g * g
-                theta = theta - lr * (m / (1 - b1 ** t)) / (np.sqrt(v / (1 - b2 ** t)) + 1e-8)
+                # each step waits for its solve, so the deadline sees the time spent
+                theta, state = jax.block_until_ready(fn(theta, state, fixed, inc, np.float64(self.opts.lam), *arrays))
+        theta = np.asarray(theta)
         return 1.0 / (1.0 + np.exp(-theta[nf:nf + k]))
 
 
@@ -386,12 +390,11 @@ def stabilize(vox: np.ndarray, opts: StabilizeOptions = StabilizeOptions(), sour
 
     grad = None
     start = merge_voxels(vox, seed=0, bricks=opts.bricks, source=source)
-    a = check(start)
-    start_a = a
-    best, best_a, how = start, a, "heuristic"
-    say(f"heuristic merge: {start.n} bricks, {merit(a)[0]} failing")
-    if a.stable:
-        return out(start, a, "heuristic", 0)
+    start_a = check(start)
+    best, best_a, how = start, start_a, "heuristic"
+    say(f"heuristic merge: {start.n} bricks, {merit(start_a)[0]} failing")
+    if start_a.stable:
+        return out(start, start_a, "heuristic", 0)
     for seed in range(1, opts.seeds):
         if time.perf_counter() - t0 > opts.time_s:
             break
