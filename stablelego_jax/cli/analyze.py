@@ -4,7 +4,7 @@ from __future__ import annotations
 import json
 import sys
 
-from .common import png_target, report_error, solver_for
+from .common import add_solver_option, png_target, report_error, solver_for
 
 __all__ = ["add_parser", "cmd_analyze"]
 
@@ -14,11 +14,7 @@ def add_parser(sub, methods) -> None:
                                        "scenes of blocks and rotated bricks)")
     a.add_argument("files", nargs="+", metavar="FILE")
     a.add_argument("--library", help="brick library JSON (default: the StableLego library)")
-    a.add_argument("--solver", choices=["jax", "admm", "exact", "auto"], default=None,
-                   help="jax (interior point in JAX), admm (first-order JAX solver), "
-                        "exact (HiGHS; the only one for luo and eb) or auto (per group of layouts, whichever of "
-                        "jax and exact is estimated faster, compiling included; each result says which; "
-                        "the default for --method ours)")
+    add_solver_option(a)
     a.add_argument("--method", choices=list(methods), default="ours",
                    help="ours (paper Eq. 9, default), luo (Luo et al. 2015) or eb (enhanced baseline): "
                         "the baselines answer solvable or not (JSON 'solvable')")

@@ -5,7 +5,7 @@ import json
 import os
 import sys
 
-__all__ = ["solver_for", "png_target", "report_error", "load_library", "int_at_least", "int_or_auto",
+__all__ = ["add_solver_option", "solver_for", "png_target", "report_error", "load_library", "int_at_least", "int_or_auto",
            "positive_seconds"]
 
 
@@ -46,6 +46,18 @@ def positive_seconds(v: str) -> float:
     if not t > 0:
         raise argparse.ArgumentTypeError(f"expected seconds > 0, got {v}")
     return t
+
+
+def add_solver_option(parser) -> None:
+    """The ``--solver`` option of ``analyze`` and ``score`` (choices:
+    :data:`~stablelego_jax.analysis.SOLVERS`; unset: :func:`solver_for`)."""
+    from ..analysis import SOLVERS
+
+    parser.add_argument("--solver", choices=list(SOLVERS), default=None,
+                        help="jax (interior point in JAX), admm (first-order JAX solver), "
+                             "exact (HiGHS; the only one for luo and eb) or auto (per group of layouts, whichever "
+                             "of jax and exact is estimated faster, compiling included; each result says which; "
+                             "the default for --method ours)")
 
 
 def solver_for(args) -> str:

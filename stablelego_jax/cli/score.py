@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import sys
 
-from .common import solver_for
+from .common import add_solver_option, solver_for
 
 __all__ = ["add_parser", "cmd_score"]
 
@@ -19,11 +19,7 @@ def add_parser(sub, methods, exact_methods) -> None:
     )
     sc.add_argument("inputs", nargs="+", metavar="INPUT")
     sc.add_argument("--out", required=True, metavar="RESULTS", help="JSON-lines results file (appended)")
-    sc.add_argument("--solver", choices=["jax", "admm", "exact", "auto"], default=None,
-                    help="jax (interior point in JAX), admm (first-order JAX solver), "
-                         "exact (HiGHS; the only one for luo and eb) or auto (per group of layouts, whichever of "
-                         "jax and exact is estimated faster, compiling included; each result says which; "
-                         "the default for --method ours)")
+    add_solver_option(sc)
     sc.add_argument("--method", choices=list(methods), default="ours",
                     help="ours (default), luo or eb (baselines, exact solver; lines get 'solvable')")
     sc.add_argument("--exact-method", choices=list(exact_methods), default="highs",
