@@ -3,7 +3,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from stablelego_jax.solvers.blocks import block_cholesky, block_solve
+from stablelego_jax.solvers.blocks import block_cholesky, block_solve, lower_gram
 
 pytestmark = pytest.mark.usefixtures("x64")
 
@@ -23,7 +23,7 @@ def _blocks(M, L, k):
     return D, E
 
 
-@pytest.mark.parametrize("L,k", [(1, 5), (4, 3), (7, 6)])
+@pytest.mark.parametrize("L,k", [(1, 5), (4, 3), (7, 6), (3, 300)])
 def test_block_cholesky_solves_the_block_tridiagonal_system(L, k):
     rng = np.random.default_rng(0)
     N = L * k
@@ -34,3 +34,11 @@ def test_block_cholesky_solves_the_block_tridiagonal_system(L, k):
     r = rng.normal(size=N)
     x = block_solve(C, G, jnp.asarray(r).reshape(L, k)).reshape(-1)
     np.testing.assert_allclose(np.asarray(x), np.linalg.solve(M, r), rtol=1e-10, atol=1e-12)
+
+
+@pytest.mark.parametrize("k", [100, 300, 520])
+def test_lower_gram_is_the_lower_triangle_of_the_gram_matrix(k):
+    """One panel (k < 256), two uneven ones (300), four (520)."""
+    G = np.random.default_rng(1).normal(size=(k, k))
+    P = np.asarray(lower_gram(jnp.asarray(G)))
+    np.testing.assert_allclose(np.tril(P), np.tril(G.T @ G), rtol=1e-12, atol=1e-9)

@@ -72,6 +72,9 @@ def reduced_matrix(col_brick, coef, normal, n: int, L: int, chunks=None, support
         """(n, 6) each brick's own part of its vector A q_b."""
         return jnp.zeros((n + 1, 6), dtype).at[own_idx].add(q[:, None] * c12[:, :6])[:n]
 
+    def down(X):  # (L, ...) -> X[l + 1] at l, zeros at L - 1
+        return jnp.concatenate([X[1:], jnp.zeros_like(X[:1])])
+
     def diag_blocks(dr):
         return jax.vmap(jnp.diag)(dr.reshape(L, k6))
 
@@ -110,10 +113,10 @@ def reduced_matrix(col_brick, coef, normal, n: int, L: int, chunks=None, support
             ro = (rho[:, None] * o).reshape(L, B, 6)
             # 6 x 6 diagonal blocks rho o o' plus diag(dr), placed on the block diagonal
             P = ro[..., :, None] * o.reshape(L, B, 1, 6) + jax.vmap(jax.vmap(jnp.diag))(dr.reshape(L, B, 6))
-            D = D + (P[:, :, :, None, :] * eye).reshape(L, k6, k6)
             WW = jnp.matmul(jnp.swapaxes(W * rho.reshape(L, B, 1), 1, 2), W)
             OW = (ro[..., None] * W[:, :, None, :]).reshape(L, k6, k6)  # rows: owners' slots, columns: below
-            return D.at[:-1].add(WW[1:]), E.at[:-1].add(OW[1:])
+            # level l + 1's terms land on level l: one pass over D and E (an update in place copied each)
+            return D + (P[:, :, :, None, :] * eye).reshape(L, k6, k6) + down(WW), E + down(OW)
 
         return assemble
 
