@@ -36,9 +36,9 @@ def test_block_cholesky_solves_the_block_tridiagonal_system(L, k):
     np.testing.assert_allclose(np.asarray(x), np.linalg.solve(M, r), rtol=1e-10, atol=1e-12)
 
 
-@pytest.mark.parametrize("k", [100, 300, 520])
+@pytest.mark.parametrize("k", [100, 301, 390, 520])
 def test_lower_gram_is_the_lower_triangle_of_the_gram_matrix(k):
-    """One panel (k < 256), two uneven ones (300), four (520)."""
+    """One panel (k < 256), two uneven ones (301: 151 and 150 rows), three (390), four (520)."""
     G = np.random.default_rng(1).normal(size=(k, k))
     P = np.asarray(lower_gram(jnp.asarray(G)))
     np.testing.assert_allclose(np.tril(P), np.tril(G.T @ G), rtol=1e-12, atol=1e-9)
