@@ -275,8 +275,8 @@ def solve(prob: Problem, params: Params = Params(), opts: IPMOptions = IPMOption
     z0, nu0, lam0 = K["start"]()
 
     def body(c):
-        z, nu, lam = c["z"], c["nu"], c["lam"]
-        _, _, _, _, _, rd, rp_res = measures(z, nu, lam)
+        # the residuals at the iterate come from the previous iteration's measures
+        z, nu, lam, rd, rp_res = c["z"], c["nu"], c["lam"], c["rd"], c["rp"]
         s = G(z)
         mu = dot(s, tuple(l_ * a for l_, a in zip(lam, act))) / n_act
         f = factor(z, lam)
@@ -296,8 +296,9 @@ def solve(prob: Problem, params: Params = Params(), opts: IPMOptions = IPMOption
         z = jax.tree_util.tree_map(lambda a, b: a + ap * b, z, dz)
         lam = tuple(l_ + ad * d_ for l_, d_ in zip(lam, dlam))
         nu = nu + ad * dnu
-        (ok, fine), pres, dres, obj, dual, _, _ = measures(z, nu, lam)
-        new = dict(z=z, nu=nu, lam=lam, it=c["it"] + 1, done=fine, ok=ok, pres=pres, dres=dres, obj=obj, dual=dual)
+        (ok, fine), pres, dres, obj, dual, rd, rp_res = measures(z, nu, lam)
+        new = dict(z=z, nu=nu, lam=lam, rd=rd, rp=rp_res, it=c["it"] + 1, done=fine, ok=ok, pres=pres, dres=dres,
+                   obj=obj, dual=dual)
         # numerical breakdown (factor lost definiteness near the end), or a polishing step that
         # lost convergence: keep the last iterate and stop
         bad = ~(jnp.isfinite(obj) & jnp.isfinite(dual) & jnp.isfinite(pres) & jnp.isfinite(dres)) | (c["ok"] & ~ok)
@@ -305,8 +306,9 @@ def solve(prob: Problem, params: Params = Params(), opts: IPMOptions = IPMOption
         return jax.tree_util.tree_map(lambda u, v: jnp.where(bad, u, v), old, new)
 
     big = jnp.asarray(jnp.inf, dtype)
-    c0 = dict(z=z0, nu=nu0, lam=lam0, it=jnp.asarray(0), done=jnp.asarray(False), ok=jnp.asarray(False),
-              pres=big, dres=big, obj=big, dual=-big)
+    rd0, rp0 = K["residuals"](z0, nu0, lam0)
+    c0 = dict(z=z0, nu=nu0, lam=lam0, rd=rd0, rp=rp0, it=jnp.asarray(0), done=jnp.asarray(False),
+              ok=jnp.asarray(False), pres=big, dres=big, obj=big, dual=-big)
     c = jax.lax.while_loop(lambda c: (~c["done"]) & (c["it"] < opts.max_iter), body, c0)
     gap = (c["obj"] - c["dual"]) / jnp.maximum(jnp.abs(c["obj"]), 1e-12)
     cost = dot(K["cvec"], c["z"])  # the Eq. 9 value, without the least-norm term
