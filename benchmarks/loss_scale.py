@@ -3,7 +3,7 @@ against the dense one.
 
 Usage:
   python benchmarks/loss_scale.py [--mesh MESH] [--grid 20] [--up y]
-      [--placements N] [--solver layered|dense] [--fd 4] [--seed 0] [--json]
+      [--placements N] [--solver layered|dense] [--calls 1] [--fd 4] [--seed 0] [--json]
 
 The soft problem: the mesh voxelised at ``--grid`` (default: the Stanford
 bunny of ``../shared/meshes`` upright, ``--up y``: 20 layers), covered by
@@ -14,7 +14,11 @@ overlap the layout and each other: alternatives) at random weights in
 [0.05, 0.5], spread evenly over the layers (a random order within each
 layer, then round robin), up to ``--placements`` in all; random extra loads
 (0-50 g) on a third of the layout's bricks. Compiled by
-:func:`stablelego_jax.soft.compile_placements`.
+:func:`stablelego_jax.soft.compile_placements`, planned by
+:func:`stablelego_jax.solvers.problem.plan_soft` for ``--calls`` solves
+(``--solver layered``; 1: the ladder's padding, as an unknown caller
+gets; the steps of an optimisation can pay for a padding fitted to the
+problem) or padded to the ladder and solved dense (``--solver dense``).
 
 Measured: ``compile_s`` (jit of loss + gradient, lowering and compiling),
 ``loss_grad_s`` (one loss + gradient after compile, best of ``--repeat``),
@@ -49,7 +53,7 @@ from stablelego_jax.generate.voxels import merge_voxels  # noqa: E402
 from stablelego_jax.loss import LossOptions, soft_report  # noqa: E402
 from stablelego_jax.soft import compile_placements  # noqa: E402
 from stablelego_jax.solvers.problem import (  # noqa: E402
-    bucket_shape, layer_bucket, layer_soft, pad_soft, rung, soft_layer_plan, stack_soft)
+    bucket_shape, layer_bucket, layer_soft, pad_soft, plan_soft, rung, soft_layer_plan, stack_soft)
 from stablelego_jax.train.net import MASS, TYPES, valid_placements  # noqa: E402
 
 MESHES = os.path.join(os.path.dirname(__file__), "..", "..", "shared", "meshes")
@@ -123,6 +127,9 @@ def main(argv=None) -> int:
     ap.add_argument("--solver", choices=("layered", "dense"), default="layered")
     ap.add_argument("--fd", type=int, default=4, help="sampled candidate weights for central differences (0: none)")
     ap.add_argument("--repeat", type=int, default=2)
+    ap.add_argument("--calls", type=int, default=1,
+                    help="plan the layered problem for this many solves (plan_soft: 1 keeps the ladder's padding; "
+                         "an optimisation's steps may pay for a fitted one)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--batch", type=int, default=0,
                     help="instead: K problems (seeds seed..seed+K-1) of one padded shape, vmap-ed against one at a time")
@@ -137,8 +144,12 @@ def main(argv=None) -> int:
     L, B = soft_layer_plan(prob)
     n = prob.mass.shape[0]
     if a.solver == "layered":
-        prob = layer_soft(prob)
-    prob = pad_soft(prob)
+        # planned as a caller making --calls solves of it (a fitted padding when that pays for its compile)
+        prob = plan_soft(prob, calls=a.calls)
+        if prob.layers is None:
+            raise SystemExit(f"{a.mesh}: plan_soft does not layer this problem")
+    else:
+        prob = pad_soft(prob)
     n_pad = prob.mass.shape[0]
     W = np.zeros(n_pad)
     W[:n] = w
@@ -175,7 +186,7 @@ def main(argv=None) -> int:
             err = min(abs(g - d) / max(abs(d), 1e-3 * scale) for d in fds)
             errs.append(err)
     out = dict(
-        mesh=os.path.basename(a.mesh), grid=a.grid, up=a.up, solver=a.solver,
+        mesh=os.path.basename(a.mesh), grid=a.grid, up=a.up, solver=a.solver, calls=a.calls,
         placements=int(n), layout_bricks=int(nl), layers=int(L), max_per_layer=int(B),
         padded=[int(n_pad), int(prob.col_kind.shape[0]), int(prob.group.shape[1])]
         + ([list(map(int, prob.layers.shape))] if prob.layers is not None else []),

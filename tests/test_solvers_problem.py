@@ -313,3 +313,33 @@ def test_merge_plans_counts_batch_padding_and_batch_sizes():
     # with room in the target's padding the move is free of padding and still made
     sizes = {("dense", 24): [(24, 4, 8)] * 4, ("dense", 32): [(32, 5, 8)] * 40}
     assert merge_plans(sizes, pieces=cut(64))[("dense", 24)] == ("dense", 32)
+
+
+def test_plan_soft_fits_the_padding_when_the_solves_pay_for_a_compile():
+    """One solve: the ladder's padding (shared with similar problems); a
+    caller that solves the problem many times gets a padding fitted to it
+    (its own layer count, fewer bricks and columns), with the same loss."""
+    from stablelego_jax.layout import brick_layout
+    from stablelego_jax.loss import stability_loss
+    from stablelego_jax.solvers.problem import plan_soft, soft_layer_plan
+
+    # a box of 6 layers of 49 unit bricks, a 1 x 8 brick on top sticking 6 studs out, 0.5 kg hung on it
+    box = cuboid(7, 7, 6)
+    p = compile_soft(brick_layout(np.concatenate([box.pos, [[5, 0, 6]]]),
+                                  np.concatenate([box.size, [[8, 1]]]))).problem
+    L, B = soft_layer_plan(p)
+    n, m = p.mass.shape[0], p.col_kind.shape[0]
+    ladder, fitted = plan_soft(p), plan_soft(p, calls=10 ** 6)
+    assert (L, B) == (7, 49) and ladder.layers.shape == layer_bucket(L, B) == (8, 56)
+    assert (ladder.mass.shape[0], ladder.col_kind.shape[0]) == bucket_shape(n, m, p.group.shape[1])[:2]
+    assert fitted.layers.shape == (7, 56)
+    assert fitted.mass.shape[0] == -(-n // 8) * 8 < ladder.mass.shape[0]
+    assert fitted.col_kind.shape[0] == -(-m // 64) * 64 < ladder.col_kind.shape[0]
+    assert plan_soft(p, calls=2).layers.shape == (8, 56)  # a few solves do not pay for a compile
+    losses = []
+    for q in (ladder, fitted):
+        w, loads = np.zeros(q.mass.shape[0]), np.zeros(q.mass.shape[0])
+        w[:n], loads[n - 1] = 1.0, 0.5
+        losses.append(float(stability_loss(w, loads, q)))
+    assert losses[0] > 1.0  # the long brick is pulled off: far above the barrier's floor
+    np.testing.assert_allclose(losses[1], losses[0], rtol=1e-7)

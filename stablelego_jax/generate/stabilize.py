@@ -337,7 +337,8 @@ class _Gradient:
         allpos = np.concatenate([fpos, pos])
         allsize = np.concatenate([fsize, size])
         mass = table_i_bricks(allsize)[0]
-        prob = plan_soft(compile_placements(allpos, allsize, mass, self.opts.params))
+        # solved once a step: a padding fitted to the region when the steps pay for its compile
+        prob = plan_soft(compile_placements(allpos, allsize, mass, self.opts.params), calls=self.opts.steps)
         n_pad = prob.mass.shape[0]
         nf, k = len(fpos), len(pos)
         cells, owner = cells_of(pos, size)

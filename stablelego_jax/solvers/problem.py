@@ -307,13 +307,47 @@ def soft_plan(prob: SoftProblem) -> tuple:
     return ("dense",)
 
 
-def plan_soft(prob: SoftProblem) -> SoftProblem:
+def plan_soft(prob: SoftProblem, calls: int = 1) -> SoftProblem:
     """The problem padded to the ladder (:func:`pad_soft`), layered
-    (:func:`layer_soft`) when :func:`soft_plan` says that is cheaper."""
-    key = soft_plan(prob)
+    (:func:`layer_soft`) when :func:`soft_plan` says that is cheaper.
+
+    ``calls``: how many solves (loss + gradient) the caller makes of this
+    problem, e.g. the steps of an optimisation. The padding is fitted to
+    the problem alone (its own layer count, slots per layer and bricks
+    rounded up to 8, columns and column chunks to 64 and 8, its own
+    contact slots) when the time that saves over ``calls`` solves
+    (:func:`plan_seconds` at ``SOFT_SOLVES`` factorisations a solve)
+    exceeds one compile (``SOFT_COMPILE_S``): a fitted shape is shared
+    with no other problem. The 2000-placement bunny of
+    ``benchmarks/loss_scale.py``: 20 layers of 120 slots and 262400
+    columns instead of 128 and 293752 (loss + gradient about 15% faster)."""
+    def up(k, q):
+        return -(-k // q) * q
+
+    n, m, P = prob.mass.shape[0], prob.col_kind.shape[0], prob.group.shape[1]
+    key, shape = soft_plan(prob), bucket_shape(n, m, P)
+    fshape = tuple(min(a, b) for a, b in zip(shape, (up(n, 8), up(m, 64), P)))
     if key[0] == "layered":
-        prob = layer_soft(prob, key[1], key[2])
-    return pad_soft(prob)
+        L, B = soft_layer_plan(prob)
+        ladder, fit = key, ("layered", L, min(key[2], up(B, 8)))
+    else:
+        ladder, fit = ("dense", shape[0]), ("dense", fshape[0])
+    saving = calls * (plan_seconds(ladder, shape[1], SOFT_SOLVES) - plan_seconds(fit, fshape[1], SOFT_SOLVES))
+    fitted = saving > SOFT_COMPILE_S
+    if fit[0] == "layered":
+        prob = layer_soft(prob, *(fit if fitted else ladder)[1:])
+    c_pad = None
+    if fitted and prob.chunk is not None:
+        c_pad = min(up(len(prob.chunk), 8), rung(len(prob.chunk), MIN_CHUNKS))
+    return pad_soft(prob, *(fshape if fitted else shape), c_pad=c_pad)
+
+
+#: Factorisations of one soft solve with its gradient (15-17 interior-point
+#: iterations and the adjoint's one on the 500-2000-placement problems of
+#: ``benchmarks/loss_scale.py``), and seconds of one compile of it there
+#: (6.7-9.5 s, session 30).
+SOFT_SOLVES = 18
+SOFT_COMPILE_S = 7.0
 
 
 # ---------------------------------------------------------------- layering
