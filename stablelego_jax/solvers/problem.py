@@ -313,14 +313,16 @@ def plan_soft(prob: SoftProblem, calls: int = 1) -> SoftProblem:
 
     ``calls``: how many solves (loss + gradient) the caller makes of this
     problem, e.g. the steps of an optimisation. The padding is fitted to
-    the problem alone (its own layer count, slots per layer and bricks
-    rounded up to 8, columns and column chunks to 64 and 8, its own
-    contact slots) when the time that saves over ``calls`` solves
-    (:func:`plan_seconds` at ``SOFT_SOLVES`` factorisations a solve)
-    exceeds one compile (``SOFT_COMPILE_S``): a fitted shape is shared
-    with no other problem. The 2000-placement bunny of
-    ``benchmarks/loss_scale.py``: 20 layers of 120 slots and 262400
-    columns instead of 128 and 293752 (loss + gradient about 15% faster)."""
+    the problem alone (its own layer count; slots per layer and bricks
+    rounded up to 8, columns and column chunks to 64 and 8, each where
+    that is below the ladder's rung; its own contact slots) when the time
+    that saves over ``calls`` solves (:func:`plan_seconds` at
+    ``SOFT_SOLVES`` factorisations a solve) exceeds one compile
+    (``SOFT_COMPILE_S``): a fitted shape is shared with no other problem.
+    The 2000-placement bunny of ``benchmarks/loss_scale.py``: 20 layers of
+    120 slots and 262400 columns instead of 128 and 293752, loss +
+    gradient 1.17x faster (BENCHMARKS.md, session 30)."""
+
     def up(k, q):
         return -(-k // q) * q
 
