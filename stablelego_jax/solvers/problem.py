@@ -338,9 +338,8 @@ def plan_soft(prob: SoftProblem, calls: int = 1) -> SoftProblem:
     fitted = saving > SOFT_COMPILE_S
     if fit[0] == "layered":
         prob = layer_soft(prob, *(fit if fitted else ladder)[1:])
-    c_pad = None
-    if fitted and prob.chunk is not None:
-        c_pad = min(up(len(prob.chunk), 8), rung(len(prob.chunk), MIN_CHUNKS))
+    # chunks: the ladder's rungs are multiples of 8, so 8 never pads more
+    c_pad = up(len(prob.chunk), 8) if fitted and prob.chunk is not None else None
     return pad_soft(prob, *(fshape if fitted else shape), c_pad=c_pad)
 
 
