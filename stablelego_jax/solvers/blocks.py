@@ -20,7 +20,11 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-__all__ = ["block_cholesky", "block_solve", "lower_gram"]
+__all__ = ["block_cholesky", "block_solve", "lower_gram", "lower_solve"]
+
+#: rows of the diagonal pieces :func:`lower_solve` inverts (every block size
+#: ``6 B``, B a multiple of 8, is a multiple of it)
+PIECE = 48
 
 
 def lower_gram(G):
@@ -39,6 +43,23 @@ def lower_gram(G):
     return jnp.concatenate([jnp.pad(s, ((0, 0), (0, k - s.shape[1]))) for s in strips])
 
 
+def lower_solve(C, R):
+    """``C^-1 R`` for a lower triangular C ((k, k)) and R ((k, r)), by
+    pieces of :data:`PIECE` rows: each diagonal piece inverted (a
+    triangular solve with the identity), then one product for its rows of
+    the result and one for what they subtract below. Products instead of
+    one LAPACK triangular solve: 1.4-2.2x faster for k = 96-600 on one CPU
+    core (BENCHMARKS.md, session 31)."""
+    k = C.shape[0]
+    X = []
+    for a in range(0, k, PIECE):
+        b = min(k, a + PIECE)
+        r = R[a:b] if a == 0 else R[a:b] - C[a:b, :a] @ jnp.concatenate(X)
+        inv = jax.scipy.linalg.solve_triangular(C[a:b, a:b], jnp.eye(b - a, dtype=C.dtype), lower=True)
+        X.append(inv @ r)
+    return jnp.concatenate(X)
+
+
 def block_cholesky(D, E):
     """Factor a block-tridiagonal SPD matrix (``F = E^T``).
     Returns (C, G): C[l] lower Cholesky factor of the l-th pivot block,
@@ -52,7 +73,7 @@ def block_cholesky(D, E):
     def body(Gprev, inp):
         Dl, El = inp
         C = jax.lax.linalg.cholesky(Dl - lower_gram(Gprev), symmetrize_input=False)
-        G = jax.scipy.linalg.solve_triangular(C, El.T, lower=True)
+        G = lower_solve(C, El.T)
         return G, (C, G)
 
     _, (C, G) = jax.lax.scan(body, jnp.zeros_like(D[0]), (D, E))

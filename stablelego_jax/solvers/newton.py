@@ -34,9 +34,14 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-from .problem import gram_plan
+from .problem import block_windows, gram_plan
 
 __all__ = ["reduced_matrix"]
+
+
+# a 6-entry window of an (n, 6 B) matrix at (row, column)
+_ROW_WINDOWS = jax.lax.ScatterDimensionNumbers(
+    update_window_dims=(1,), inserted_window_dims=(0,), scatter_dims_to_operand_dims=(0, 1))
 
 
 def reduced_matrix(col_brick, coef, normal, n: int, L: int, chunks=None, supports=None, col_slot=None):
@@ -72,6 +77,12 @@ def reduced_matrix(col_brick, coef, normal, n: int, L: int, chunks=None, support
         """(n, 6) each brick's own part of its vector A q_b."""
         return jnp.zeros((n + 1, 6), dtype).at[own_idx].add(q[:, None] * c12[:, :6])[:n]
 
+    def rows6(rows, cols, vals):
+        """(n, 6 B): 6-entry windows ``vals`` (N, 6) added at (rows, cols),
+        (N,) each; row ``n``: dropped."""
+        return jax.lax.scatter_add(jnp.zeros((n, k6), dtype), jnp.stack([rows, cols], 1), vals, _ROW_WINDOWS,
+                                   mode=jax.lax.GatherScatterMode.FILL_OR_DROP)
+
     def down(X):  # (L, ...) -> X[l + 1] at l, zeros at L - 1
         return jnp.concatenate([X[1:], jnp.zeros_like(X[:1])])
 
@@ -81,21 +92,16 @@ def reduced_matrix(col_brick, coef, normal, n: int, L: int, chunks=None, support
     if supports is not None:
         supports = jnp.asarray(supports)
         K = supports.shape[1]
-        # entries (n, 6 (K + 1)) of brick b's compact vector [own part; K supports' parts]: their rows in [D; E]
-        vb = jnp.repeat(jnp.concatenate([jnp.arange(n, dtype=supports.dtype)[:, None], supports], 1), 6, 1)
-        vpos = 6 * (vb % B) + jnp.tile(jnp.arange(6), K + 1)[None, :]
-        vl = vb // B
-        lr, lc = vl[:, :, None], vl[:, None, :]
-        ok = (vb[:, :, None] < n) & (vb[:, None, :] < n)
-        cell = vpos[:, :, None] * k6 + vpos[:, None, :]
-        sup_idx = jnp.where(ok & (lr == lc), lr * k6 * k6 + cell,
-                            jnp.where(ok & (lr == lc + 1), (L + lc) * k6 * k6 + cell, 2 * L * k6 * k6))
+        # brick b's compact vector [own part; K supports' parts]: its (K + 1)^2 6 x 6 windows in [D; E]
+        vb = jnp.concatenate([jnp.arange(n, dtype=supports.dtype)[:, None], supports], 1)  # (n, K + 1)
+        sup_idx = block_windows(vb[:, :, None], vb[:, None, :], n, L)
         slot_idx = jnp.where(ok_n[:, 0] & real[:, 0] & (col_slot < K), ob * K + col_slot, n * K)
 
         def assemble(e, q, rho, dr):
             v = jnp.zeros((n * K + 1, 6), dtype).at[slot_idx].add(q[:, None] * c12[:, 6:])[: n * K]
             vec = jnp.concatenate([own_parts(q), v.reshape(n, 6 * K)], axis=1)  # (n, 6 (K + 1))
             piece = (rho[:, None] * vec)[:, :, None] * vec[:, None, :]
+            piece = piece.reshape(n, K + 1, 6, K + 1, 6).transpose(0, 1, 3, 2, 4)
             D, E = gram.blocks(e, extra=(sup_idx, piece))
             return D + diag_blocks(dr), E
 
@@ -103,13 +109,13 @@ def reduced_matrix(col_brick, coef, normal, n: int, L: int, chunks=None, support
 
     if L > 1:
         below = ok_n & real & (lay_l == lay_o - 1)[:, None]
-        w_idx = jnp.where(below, ob[:, None] * k6 + gram.pos[:, 6:], n * k6)
+        w_row, w_col = jnp.where(below[:, 0], ob, n), 6 * (lo % B)
         eye = jnp.eye(B, dtype=dtype)[None, :, None, :, None]
 
         def assemble(e, q, rho, dr):
             D, E = gram.blocks(e)
             o = own_parts(q)
-            W = jnp.zeros((n * k6 + 1,), dtype).at[w_idx].add(q[:, None] * c12[:, 6:])[: n * k6].reshape(L, B, k6)
+            W = rows6(w_row, w_col, q[:, None] * c12[:, 6:]).reshape(L, B, k6)
             ro = (rho[:, None] * o).reshape(L, B, 6)
             # 6 x 6 diagonal blocks rho o o' plus diag(dr), placed on the block diagonal
             P = ro[..., :, None] * o.reshape(L, B, 1, 6) + jax.vmap(jax.vmap(jnp.diag))(dr.reshape(L, B, 6))
@@ -120,13 +126,14 @@ def reduced_matrix(col_brick, coef, normal, n: int, L: int, chunks=None, support
 
         return assemble
 
-    s_idx = jnp.where(ok_n, jnp.concatenate([ob[:, None] * k6 + gram.pos[:, :6],
-                                             jnp.where(real, ob[:, None] * k6 + gram.pos[:, 6:], n * k6)], 1),
-                      n * k6)
+    # brick b's vector A q_b as row b of S (n, 6 n): each NORMAL column's own part and its support's
+    s_row = jnp.concatenate([own_idx, jnp.where(real[:, 0], own_idx, n)])
+    s_col = jnp.concatenate([6 * ob, 6 * lo])
 
     def assemble(e, q, rho, dr):
         D, E = gram.blocks(e)
-        S = jnp.zeros((n * k6 + 1,), dtype).at[s_idx].add(q[:, None] * c12)[: n * k6].reshape(1, n, k6)
+        qc = q[:, None] * c12
+        S = rows6(s_row, s_col, jnp.concatenate([qc[:, :6], qc[:, 6:]]))[None]
         D = D + jnp.matmul(jnp.swapaxes(S * rho.reshape(1, n, 1), 1, 2), S)
         return D + diag_blocks(dr), E
 

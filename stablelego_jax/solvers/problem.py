@@ -9,6 +9,7 @@ from __future__ import annotations
 import dataclasses
 from typing import NamedTuple, Sequence
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -55,6 +56,7 @@ __all__ = [
     "LayerGram",
     "layer_gram",
     "gram_plan",
+    "block_windows",
     "make_solution",
 ]
 
@@ -795,35 +797,59 @@ class LayerGram(NamedTuple):
     are :mod:`.blocks`' layout. Built once per solve (static indices);
     :meth:`blocks` assembles for any column weights: per chunk of columns
     joining one pair of bricks (``rows``, the problem's ``chunks``) a
-    (W, 12) x (W, 12) product, then one 12 x 12 piece placed per chunk;
-    without chunks one 12 x 12 piece per column."""
+    (W, 12) x (W, 12) product, then the 12 x 12 piece's four 6 x 6 brick
+    blocks placed as windows (one index each, not one per entry); without
+    chunks one piece per column."""
 
     L: int
     B: int
     k: int  # 6 B, the block size
     pos: jnp.ndarray  # (m, 12) row of each coefficient inside its layer's block
-    idx: jnp.ndarray  # (R, 12, 12) flat index into [D; E] of each piece's entries (or past the end)
+    idx: jnp.ndarray  # (R, 4, 3) each piece's brick blocks: (block of [D; E], row, column) of the 6 x 6 window
     coef: jnp.ndarray  # (R, W, 12) coefficients of each piece's columns (W = 1 without chunks)
     rows: jnp.ndarray | None  # (R, W) the piece's columns, m = none (None: piece r = column r)
 
     def blocks(self, e, extra=None):
         """(D, E), each (L, k, k): the diagonal blocks and the blocks below
         them (``E[l]`` = block (l + 1, l)) of ``A diag(e) A'``; ``e``: (m,).
-        ``extra`` (idx, values) of one shape: more entries added in the
-        same scatter (flat indices into [D; E], past the end = none)."""
+        ``extra`` (idx (N, 3), values (N, 6, 6)): more 6 x 6 windows added
+        in the same scatter (:func:`block_windows`' indices)."""
         L, k = self.L, self.k
         if self.rows is None:
             piece = e[:, None, None] * (self.coef[:, 0, :, None] * self.coef[:, 0, None, :])
         else:
             ew = jnp.concatenate([e, jnp.zeros((1,), e.dtype)])[self.rows]  # (R, W)
             piece = jnp.einsum("rwi,rwj->rij", self.coef * ew[..., None], self.coef)
-        buf = jnp.zeros((2 * L * k * k,), e.dtype)
-        if extra is None:
-            buf = buf.at[self.idx].add(piece, mode="drop")
-        else:
-            idx = jnp.concatenate([self.idx.reshape(-1), extra[0].reshape(-1)])
-            buf = buf.at[idx].add(jnp.concatenate([piece.reshape(-1), extra[1].reshape(-1)]), mode="drop")
-        return buf[: L * k * k].reshape(L, k, k), buf[L * k * k:].reshape(L, k, k)
+        R = piece.shape[0]
+        win = piece.reshape(R, 2, 6, 2, 6).transpose(0, 1, 3, 2, 4).reshape(4 * R, 6, 6)
+        idx = self.idx.reshape(4 * R, 3)
+        if extra is not None:
+            idx = jnp.concatenate([idx, extra[0].reshape(-1, 3)])
+            win = jnp.concatenate([win, extra[1].reshape(-1, 6, 6)])
+        buf = jax.lax.scatter_add(
+            jnp.zeros((2 * L, k, k), e.dtype), idx, win, _WINDOWS,
+            mode=jax.lax.GatherScatterMode.FILL_OR_DROP)
+        return buf[:L], buf[L:]
+
+
+# a (6, 6) window of a (2 L, k, k) buffer at (block, row, column)
+_WINDOWS = jax.lax.ScatterDimensionNumbers(
+    update_window_dims=(1, 2), inserted_window_dims=(0,), scatter_dims_to_operand_dims=(0, 1, 2))
+
+
+def block_windows(bi, bj, n: int, L: int):
+    """Where brick block (bi, bj) of a block-tridiagonal matrix over ``n =
+    L B`` slots lies in :class:`LayerGram`'s buffer [D; E] ((2 L, 6 B, 6 B)):
+    (..., 3) int (block, row, column) of its 6 x 6 window, block ``2 L``
+    (past the end: dropped) where it is above the diagonal blocks, joins
+    layers further apart, or a slot is ``n`` or more (none); ``bi``, ``bj``
+    int arrays that broadcast together."""
+    bi, bj = jnp.broadcast_arrays(bi, bj)
+    B = n // L
+    li, lj = bi // B, bj // B
+    ok = (bi < n) & (bj < n)
+    blk = jnp.where(ok & (li == lj), li, jnp.where(ok & (li == lj + 1), L + lj, 2 * L))
+    return jnp.stack([blk, 6 * (bi % B), 6 * (bj % B)], axis=-1)
 
 
 def layer_gram(prob: Problem, coef) -> LayerGram:
@@ -849,19 +875,14 @@ def gram_plan(col_brick, coef, n: int, L: int, chunks=None) -> LayerGram:
     pos = 6 * (b12 % B) + comp
     c12 = coef.reshape(m, 12)
     if chunks is None:
-        rows, rb12, rcoef = None, b12, c12[:, None, :]
+        rows, pb, rcoef = None, col_brick, c12[:, None, :]
     else:
         rows = jnp.asarray(chunks)
         # a chunk's columns join one pair of bricks: those of its first column (none: the sink)
-        cb = jnp.concatenate([col_brick, jnp.full((1, 2), n, col_brick.dtype)])[rows[:, 0]]
-        rb12 = jnp.repeat(cb, 6, axis=1)
+        pb = jnp.concatenate([col_brick, jnp.full((1, 2), n, col_brick.dtype)])[rows[:, 0]]
         rcoef = jnp.concatenate([c12, jnp.zeros((1, 12), c12.dtype)])[rows]  # (R, W, 12)
-    rlay, rpos = rb12 // B, 6 * (rb12 % B) + comp
-    lr, lc = rlay[:, :, None], rlay[:, None, :]
-    valid = (rb12[:, :, None] < n) & (rb12[:, None, :] < n)
-    cell = rpos[:, :, None] * k + rpos[:, None, :]
-    idx = jnp.where(valid & (lr == lc), lr * k * k + cell,
-                    jnp.where(valid & (lr == lc + 1), (L + lc) * k * k + cell, 2 * L * k * k))
+    b1, b2 = pb[:, 0], pb[:, 1]
+    idx = block_windows(jnp.stack([b1, b1, b2, b2], 1), jnp.stack([b1, b2, b1, b2], 1), n, L)
     return LayerGram(L, B, k, pos, idx, rcoef, rows)
 
 
