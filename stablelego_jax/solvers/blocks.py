@@ -48,7 +48,7 @@ def lower_solve(C, R):
     pieces of :data:`PIECE` rows: each diagonal piece inverted (a
     triangular solve with the identity), then one product for its rows of
     the result and one for what they subtract below. Products instead of
-    one LAPACK triangular solve: 1.4-2.2x faster for k = 96-600 on one CPU
+    one LAPACK triangular solve: 1.4-2x faster for k = 96-720 on one CPU
     core (BENCHMARKS.md, session 31)."""
     k = C.shape[0]
     X = []

@@ -804,7 +804,6 @@ class LayerGram(NamedTuple):
     L: int
     B: int
     k: int  # 6 B, the block size
-    pos: jnp.ndarray  # (m, 12) row of each coefficient inside its layer's block
     idx: jnp.ndarray  # (R, 4, 3) each piece's brick blocks: (block of [D; E], row, column) of the 6 x 6 window
     coef: jnp.ndarray  # (R, W, 12) coefficients of each piece's columns (W = 1 without chunks)
     rows: jnp.ndarray | None  # (R, W) the piece's columns, m = none (None: piece r = column r)
@@ -870,9 +869,6 @@ def gram_plan(col_brick, coef, n: int, L: int, chunks=None) -> LayerGram:
     m = col_brick.shape[0]
     B = n // L
     k = 6 * B
-    comp = jnp.tile(jnp.arange(6), 2)[None, :]
-    b12 = jnp.repeat(col_brick, 6, axis=1)  # (m, 12) brick of each coefficient
-    pos = 6 * (b12 % B) + comp
     c12 = coef.reshape(m, 12)
     if chunks is None:
         rows, pb, rcoef = None, col_brick, c12[:, None, :]
@@ -883,7 +879,7 @@ def gram_plan(col_brick, coef, n: int, L: int, chunks=None) -> LayerGram:
         rcoef = jnp.concatenate([c12, jnp.zeros((1, 12), c12.dtype)])[rows]  # (R, W, 12)
     b1, b2 = pb[:, 0], pb[:, 1]
     idx = block_windows(jnp.stack([b1, b1, b2, b2], 1), jnp.stack([b1, b2, b1, b2], 1), n, L)
-    return LayerGram(L, B, k, pos, idx, rcoef, rows)
+    return LayerGram(L, B, k, idx, rcoef, rows)
 
 
 def make_solution(prob: Problem, params: Params, x, iters, converged, pr, dr, obj, dual, gap) -> Solution:
