@@ -61,7 +61,8 @@ def main(argv=None) -> int:
         t_mm = best(jax.jit(lambda G: G.T @ G), E[0], repeat=a.repeat)
         print(f"k {k}: block_cholesky ({a.layers} layers) {t_all:.3f} s; one block: cholesky {t_ch * 1e3:.1f} ms "
               f"({k ** 3 / 3 / t_ch / 1e9:.1f} GFLOP/s), triangular solve {t_tr * 1e3:.1f} ms "
-              f"({k ** 3 / t_tr / 1e9:.1f}), by pieces {t_ls * 1e3:.1f} ms ({k ** 3 / t_ls / 1e9:.1f}), G'G {t_mm * 1e3:.1f} ms ({2 * k ** 3 / t_mm / 1e9:.1f})", flush=True)
+              f"({k ** 3 / t_tr / 1e9:.1f}), by pieces {t_ls * 1e3:.1f} ms ({k ** 3 / t_ls / 1e9:.1f}), "
+              f"G'G {t_mm * 1e3:.1f} ms ({2 * k ** 3 / t_mm / 1e9:.1f})", flush=True)
     return 0
 
 

@@ -73,7 +73,9 @@ def main() -> None:
     P = stack_problems(probs)
 
     def best(fn, *args):
-        f = jax.jit(jax.vmap(fn))
+        return timed(jax.jit(jax.vmap(fn)), *args)
+
+    def timed(f, *args):  # best of --repeat of a jitted f after its compile, ms
         jax.block_until_ready(f(*args))
         t = []
         for _ in range(a.repeat):
@@ -108,8 +110,9 @@ def main() -> None:
         r = jnp.ones(C.shape[:2])
         return block_solve(C, G, r), block_solve(C, G, 2.0 * r)
 
-    iters = int(jax.jit(jax.vmap(lambda p: ipm.solve(p)))(P).iters.max())
-    wall = best(lambda p: ipm.solve(p).f, P) / 1e3
+    solve = jax.jit(jax.vmap(lambda p: ipm.solve(p)))
+    iters = int(solve(P).iters.max())
+    wall = timed(solve, P) / 1e3
     print(f"bucket {key}: {len(models)} layouts in a batch of {size}, {m_pad} columns, iterations max {iters}")
     print(f"  solve: {wall * 1e3 / iters:.1f} ms per iteration of the batch")
     print(f"  assembly {best(assemble, P):.1f} ms (of it the Gram's pieces and scatter {best(gram, P):.1f}); "

@@ -45,11 +45,11 @@ def lower_gram(G):
 
 def lower_solve(C, R):
     """``C^-1 R`` for a lower triangular C ((k, k)) and R ((k, r)), by
-    pieces of :data:`PIECE` rows: each diagonal piece inverted (a
-    triangular solve with the identity), then one product for its rows of
-    the result and one for what they subtract below. Products instead of
-    one LAPACK triangular solve: 1.4-2x faster for k = 96-720 on one CPU
-    core (BENCHMARKS.md, session 31)."""
+    pieces of :data:`PIECE` rows, top down: a piece's rows of R less C's
+    rows left of the piece times the result so far, times the inverse of
+    its diagonal piece (a triangular solve with the identity). Products
+    instead of one LAPACK triangular solve: 1.4-2x faster for k = 96-720
+    on one CPU core (BENCHMARKS.md, session 31)."""
     k = C.shape[0]
     X = []
     for a in range(0, k, PIECE):
