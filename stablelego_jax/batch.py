@@ -67,7 +67,7 @@ from .solvers.problem import (
 __all__ = ["find_layouts", "read_results", "ScoreStats", "iter_analyses", "analyze_many", "score_files",
            "batch_solver_fn", "batch_sizes", "plan_bytes", "parse_shard", "in_shard", "cpu_cores",
            "RESULT_PREFIX", "SolveUnit", "solve_units", "compiled_ready", "assign_units", "POOL_MIN",
-           "auto_split"]
+           "auto_split", "CPU_CACHE_BYTES", "DEVICE_CACHE_BYTES"]
 
 LAYOUT_EXTS = (".json", ".txt", ".ldr")
 # files that sit beside StableLego layouts but are not layouts
@@ -197,18 +197,37 @@ def plan_bytes(key: tuple, m_pad: int) -> int:
 
 
 def batch_sizes(per_layout: int, batch: int, n_dev: int, mem_budget: float = 2e9,
-                cache_budget: float = 64e6) -> int:
+                cpu: bool | None = None) -> int:
     """Largest batch: at most ``batch``, within ``mem_budget`` bytes for
     ``per_layout`` bytes of each member, and a multiple of ``n_dev``.
 
-    Members whose working set exceeds ``cache_budget`` / 2 go one per device:
-    their factorisations already keep the cores busy, and a batch would only
-    run every member for its slowest member's iteration count."""
+    On a CPU (``cpu``; default: JAX's default backend) each core's share of
+    a batch is also held within :data:`CPU_CACHE_BYTES` (a power of two, at
+    least one member a device): there ``vmap`` gains nothing (a batch's
+    members run one after the other anyway) and loses twice, running every
+    member for its slowest member's iterations and passing over Newton
+    matrices that no longer fit in the core's cache (BENCHMARKS.md, session
+    32: batches of 1-4 solve 1.3-3.7x faster per layout than 32-64). On an
+    accelerator, members whose working set exceeds
+    :data:`DEVICE_CACHE_BYTES` / 2 go one per device: their factorisations
+    already keep it busy, and a batch would only run every member for its
+    slowest member's iteration count."""
+    if cpu is None:
+        cpu = jax.default_backend() == "cpu"
     cap = mem_budget * n_dev // max(per_layout, 1)
-    if per_layout > cache_budget / 2:
+    if cpu:
+        fit = max(int(CPU_CACHE_BYTES // max(per_layout, 1)), 1)
+        cap = min(cap, n_dev * (1 << (fit.bit_length() - 1)))  # a power of two a device, as batch_rung pads
+    elif per_layout > DEVICE_CACHE_BYTES / 2:
         cap = min(cap, n_dev)
     b = int(max(1, min(batch, cap)))
     return max(n_dev, (b // n_dev) * n_dev)
+
+
+#: Working set (bytes) of one CPU core's share of a batch (this machine's L2 holds 4 MiB a core).
+CPU_CACHE_BYTES = 4e6
+#: On an accelerator, a member of more than half this working set goes alone.
+DEVICE_CACHE_BYTES = 64e6
 
 
 def batch_solver_fn(params: Params, opts, n_dev: int):
@@ -437,11 +456,11 @@ class SolveUnit:
         return len(self.items) * plan_seconds(self.key, self.m_pad)
 
 
-def piece_sizes(key: tuple, m_pad: int, count: int, batch: int, n_dev: int) -> list:
+def piece_sizes(key: tuple, m_pad: int, count: int, batch: int, n_dev: int, cpu: bool | None = None) -> list:
     """Padded batch size of each piece when ``count`` layouts of bucket
     ``key`` with ``m_pad`` columns are solved at most ``batch`` at a time on
     ``n_dev`` devices (:func:`batch_sizes`, :func:`~stablelego_jax.solvers.problem.batch_rung`)."""
-    return _rungs(batch_sizes(plan_bytes(key, m_pad), batch, n_dev), count, n_dev)
+    return _rungs(batch_sizes(plan_bytes(key, m_pad), batch, n_dev, cpu=cpu), count, n_dev)
 
 
 def _rungs(bsz: int, count: int, n_dev: int) -> list:

@@ -13,9 +13,10 @@ from stablelego_jax.generate.objects import analyze_and_write
 from stablelego_jax.generate.procedural import stairs, tower
 from stablelego_jax import load_layout
 from stablelego_jax.analysis import analyze
-from stablelego_jax.batch import (ScoreStats, batch_sizes, find_layouts, piece_sizes, plan_bytes, read_results,
-                                  score_files)
+from stablelego_jax.batch import (CPU_CACHE_BYTES, ScoreStats, batch_sizes, find_layouts, piece_sizes, plan_bytes,
+                                  read_results, score_files)
 from stablelego_jax.cli import main
+from stablelego_jax.solvers.problem import FULL_BATCH
 
 REF = os.path.join(EXAMPLES, "stablelego")
 SMALL = ["external_weight_good.json", "external_weight_fail.json", "stick_light.json"]
@@ -114,23 +115,39 @@ def test_exact_solver_path(shard, tmp_path):
 
 def test_batch_sizes_respect_memory_and_devices():
     small, big = plan_bytes(("dense", 8), 64), plan_bytes(("dense", 512), 4096)
-    assert batch_sizes(small, 64, 1) == 64
-    assert 1 <= batch_sizes(big, 64, 1) < 64
-    assert batch_sizes(big, 64, 1) * big <= 2e9
-    assert batch_sizes(small, 64, 4) % 4 == 0
-    assert batch_sizes(10 * big, 64, 2) == 2
+    assert batch_sizes(small, 64, 1, cpu=False) == 64
+    assert 1 <= batch_sizes(big, 64, 1, cpu=False) < 64
+    assert batch_sizes(big, 64, 1, cpu=False) * big <= 2e9
+    assert batch_sizes(small, 64, 4, cpu=False) % 4 == 0
+    assert batch_sizes(10 * big, 64, 2, cpu=False) == 2
     # the layer-by-layer plan of a 20-layer blob needs far less than its dense form
     assert plan_bytes(("layered", 20, 40), 8192) < plan_bytes(("dense", 800), 8192) / 10
 
 
+def test_cpu_batches_stay_within_a_cores_cache():
+    """On a CPU each core's share of a batch fits CPU_CACHE_BYTES, at least
+    one layout a device: a tiny bucket still batches, a 40-brick one does not."""
+    tiny, mid = plan_bytes(("dense", 8), 300), plan_bytes(("dense", 40), 2184)
+    assert tiny < CPU_CACHE_BYTES < mid
+    b = batch_sizes(tiny, 64, 1, cpu=True)
+    assert 2 <= b and b * tiny <= CPU_CACHE_BYTES and b & (b - 1) == 0
+    assert batch_sizes(mid, 64, 1, cpu=True) == 1
+    assert batch_sizes(mid, 64, 2, cpu=True) == 2  # one a device
+    assert batch_sizes(tiny, 1, 1, cpu=True) == 1  # --batch still caps it
+
+
 def test_piece_sizes_are_the_padded_batches_solved():
-    """Full batches, then the rest padded to a power of two (times the devices)."""
+    """Full batches, then the rest padded to a power of two (times the
+    devices); batches of at most FULL_BATCH are always padded to full."""
     key = ("dense", 8)
-    assert piece_sizes(key, 64, 70, 64, 1) == [64, 8]
-    assert piece_sizes(key, 64, 64, 64, 1) == [64]
-    assert piece_sizes(key, 64, 5, 64, 2) == [8]
-    assert piece_sizes(key, 64, 130, 32, 1) == [32, 32, 32, 32, 2]
-    assert piece_sizes(("dense", 512), 4096, 3, 64, 1) == [1, 1, 1]  # one a batch: its memory
+    assert piece_sizes(key, 64, 70, 64, 1, cpu=False) == [64, 8]
+    assert piece_sizes(key, 64, 64, 64, 1, cpu=False) == [64]
+    assert piece_sizes(key, 64, 5, 64, 2, cpu=False) == [8]
+    assert piece_sizes(key, 64, 130, 32, 1, cpu=False) == [32, 32, 32, 32, 2]
+    assert piece_sizes(("dense", 512), 4096, 3, 64, 1, cpu=False) == [1, 1, 1]  # one a batch: its memory
+    assert piece_sizes(key, 64, 6, 4, 1, cpu=False) == [4, 4]  # not [4, 2]: one size compiled, not two
+    assert FULL_BATCH >= 4
+    assert piece_sizes(("dense", 40), 2184, 3, 64, 1, cpu=True) == [1, 1, 1]
 
 
 def test_sharded_over_four_cpu_devices_matches(shard, tmp_path):
@@ -202,20 +219,21 @@ def test_compiled_buckets_are_not_merged_away(monkeypatch, tmp_path):
     from stablelego_jax.solvers import compiled, ipm
     from stablelego_jax.solvers.problem import solve_plan
 
-    # 32 small layouts (moving them costs more than a load, less than a compile), four larger
-    lays = [stairs(3)] * 32 + [tower(k) for k in range(20, 24)]
+    # 96 small layouts (moving them costs more than a load, less than a compile), four larger
+    lays = [stairs(3)] * 96 + [tower(k) for k in range(20, 24)]
     loaded = [(i, lay, compile_layout(lay, Params())) for i, lay in enumerate(lays)]
     small = solve_plan(loaded[0][2])
-    assert all(solve_plan(it[2]) != small for it in loaded[32:])
+    assert all(solve_plan(it[2]) != small for it in loaded[96:])
     ready = compiled_ready(Params(), ipm.IPMOptions(), 1)
     monkeypatch.setenv("STABLELEGO_CACHE_DIR", str(tmp_path))  # nothing on disk yet
     compiled.clear()
     units = solve_units(loaded, "jax", 64, 1, ready=ready)
-    assert len(units) == 1 and units[0].key != small  # merged: one compile instead of two
-    analyze_many(lays[:32], "jax", merge=False)  # compiles the small bucket's solver
+    assert len({u.key for u in units}) == 1 and units[0].key != small  # merged: one compile instead of two
+    analyze_many(lays[:96], "jax", merge=False)  # compiles the small bucket's solver
     ready = compiled_ready(Params(), ipm.IPMOptions(), 1)  # a new planning pass
     units = solve_units(loaded, "jax", 64, 1, ready=ready)
-    assert sorted(u.key for u in units) == sorted({small, units[-1].key}) and len(units) == 2
+    keys = {u.key for u in units}
+    assert small in keys and len(keys) == 2
     # within one pass a bucket is looked up once (solve_units, then auto_split)
     calls = []
     real = batch.available

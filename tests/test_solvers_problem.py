@@ -53,6 +53,8 @@ def test_rung_ladder():
     assert all(rung(v) == v for v in set(r))
     assert layer_bucket(3, 5) == (4, 6) and layer_bucket(70, 130) == (80, 144)
     assert [batch_rung(k, 2, 64) for k in (1, 2, 3, 9, 200)] == [2, 2, 4, 16, 64]
+    # small batches are padded to full: one compiled batch size, not 1, 2 and 4
+    assert [batch_rung(k, 1, 4) for k in (1, 2, 3, 4)] == [4, 4, 4, 4]
 
 
 def test_bucket_shape_and_padding_on_the_ladder():
@@ -197,12 +199,13 @@ def test_merge_plans_keeps_ready_buckets_and_counts_columns():
     """A bucket whose solver is compiled already saves only a load by moving,
     so it stays; padded columns make a bucket's layouts cost more, and a
     target that must pad its own layouts to more columns counts that too."""
-    from stablelego_jax.solvers.problem import merge_plans, plan_seconds
+    from stablelego_jax.solvers.problem import COMPILE_S, LOAD_S, merge_plans, plan_seconds
 
     assert plan_seconds(("dense", 16), 1000) > plan_seconds(("dense", 16), 500) > 0
     assert plan_seconds(("layered", 12, 12)) > plan_seconds(("layered", 12, 8))
-    # 60 layouts: moving them costs more than a load (0.4 s), less than a compile
-    sizes = {("dense", 24): [(24, 4, 8)] * 60, ("dense", 32): [(32, 5, 8)] * 100}
+    # 400 layouts: moving them costs more than a load (0.4 s), less than a compile
+    sizes = {("dense", 24): [(24, 4, 8)] * 400, ("dense", 32): [(32, 5, 8)] * 100}
+    assert LOAD_S < 400 * (plan_seconds(("dense", 32)) - plan_seconds(("dense", 24))) < COMPILE_S
     assert merge_plans(sizes)[("dense", 24)] == ("dense", 32)
     assert merge_plans(sizes, ready={("dense", 24)})[("dense", 24)] == ("dense", 24)
     # the layouts of the small bucket have many columns: merging them
@@ -313,6 +316,32 @@ def test_merge_plans_counts_batch_padding_and_batch_sizes():
     # with room in the target's padding the move is free of padding and still made
     sizes = {("dense", 24): [(24, 4, 8)] * 4, ("dense", 32): [(32, 5, 8)] * 40}
     assert merge_plans(sizes, pieces=cut(64))[("dense", 24)] == ("dense", 32)
+
+
+def test_merge_plans_cuts_the_dense_chain_at_least_cost():
+    """The dense buckets are cut into runs of consecutive sizes, each solved
+    in its largest bucket, at the least estimated time: the same cost as
+    the best of every such cut, tried one by one."""
+    import itertools
+
+    from stablelego_jax.solvers.problem import COMPILE_S, merge_plans, plan_seconds
+
+    keys = [("dense", b) for b in (8, 16, 24, 32, 40, 56, 96)]
+    rng = np.random.default_rng(3)
+    for _ in range(20):
+        count = dict(zip(keys, rng.integers(1, 400, len(keys)).tolist()))
+        sizes = {k: [(k[1], 1, 1)] * c for k, c in count.items()}
+
+        def cost(heads):  # each key solved in the first head at or above it
+            into = {k: next(h for h in heads if h[1] >= k[1]) for k in keys}
+            return sum(count[k] * plan_seconds(into[k]) for k in keys) + COMPILE_S * len(set(into.values()))
+
+        best = min(cost([k for k, on in zip(keys, cut) if on] + [keys[-1]])
+                   for cut in itertools.product([0, 1], repeat=len(keys) - 1))
+        into = merge_plans(sizes)
+        heads = sorted(set(into.values()), key=lambda k: k[1])
+        assert all(into[k][1] >= k[1] and into[into[k]] == into[k] for k in keys)
+        assert cost(heads) == pytest.approx(best, rel=1e-12)
 
 
 def test_plan_soft_fits_the_padding_when_the_solves_pay_for_a_compile():

@@ -27,6 +27,7 @@ __all__ = [
     "stack_problems",
     "rung",
     "batch_rung",
+    "FULL_BATCH",
     "bucket_shape",
     "pad_to_bucket",
     "pad_soft",
@@ -148,11 +149,18 @@ SLOT_RUNGS = (1, 2, 4, 6, 8, 12, 16, 20, 24, 32, 40, 48, 56, 64, 80, 96, 128)
 def batch_rung(k: int, n_dev: int = 1, cap: int | None = None) -> int:
     """Padded batch of ``k`` problems: ``n_dev`` times a power of two (so few
     batch shapes compile and every device gets an equal share), at most
-    ``cap``."""
+    ``cap``. A ``cap`` of at most :data:`FULL_BATCH` pads every batch to
+    ``cap``: a few padded solves cost less than another compiled size."""
+    if cap is not None and cap <= FULL_BATCH:
+        return int(cap)
     size = max(int(n_dev), 1)
     while size < k:
         size *= 2
     return size if cap is None else min(size, cap)
+
+
+#: Batches of at most this many problems are always padded to full (:func:`batch_rung`).
+FULL_BATCH = 8
 
 
 def bucket_shape(n: int, m: int, p: int) -> tuple[int, int, int]:
@@ -649,27 +657,31 @@ LOAD_S = 0.4
 COLUMNS_PER_BRICK = 36
 
 
-def plan_seconds(key: tuple, m_pad: int | None = None, iters: int = 25) -> float:
+def plan_seconds(key: tuple, m_pad: int | None = None, iters: float | None = None) -> float:
     """Rough seconds one layout of bucket ``key`` with ``m_pad`` columns
-    (default ``COLUMNS_PER_BRICK`` per padded brick) takes in a batched
-    interior-point solve of ``iters`` iterations. Per iteration: 0.67 us
-    per column (the weighted Gram and the operators), and for ``k = 6 B``
-    rows of a factor block 15.8 ns k^2 + 18 ps k^3 dense (``B`` = the
-    padded bricks), 27 ns k^2 + 68 ps k^3 per layer layered (a Cholesky,
-    a triangular solve and a product per layer). Fitted to warm batched
-    solves of 200 small layouts on one CPU core (session 21, to 10% on 14
-    buckets), then scaled by 0.7 to the solves with the Gram assembled per
-    chunk of columns and no iterative refinement (session 22: measured /
-    model 0.62-0.77 over 18 buckets, dense and layered alike)."""
+    (default ``COLUMNS_PER_BRICK`` per padded brick) takes in the
+    interior-point solve as batched on a CPU (:func:`~stablelego_jax.batch.batch_sizes`),
+    over ``iters`` iterations (default: 6.1 + 3.9 ln(padded bricks), the
+    mean count). Per iteration: 0.45 us per column (the weighted Gram and
+    the operators), and for ``k = 6 B`` rows of a factor block 7.3 ns k^2 +
+    11 ps k^3 dense (``B`` = the padded bricks), 14 ns k^2 + 208 ps k^3 per
+    layer layered (a Cholesky, a triangular solve and products per layer).
+    Fitted to warm solves of 50 buckets (the 500 small layouts and 150 of
+    the 1000-layout shard, unmerged, batched as ``score`` batches them, one
+    CPU core; session 32): per iteration within 30% on 45 of them (0.58-1.33x),
+    the iteration count within 25% on 39 (0.83-1.59x), per layout within
+    30% on 40 (0.51-2.11x); summed 55.8 s against 60.5 s measured."""
     if key[0] == "dense":
-        L, k = 1, 6 * key[1]
-        per_k = 1.58e-5 * k * k + 1.8e-8 * k ** 3
+        L, k, n_b = 1, 6 * key[1], key[1]
+        per_k = 7.3e-9 * k * k + 1.1e-11 * k ** 3
     else:
-        L, k = key[1], 6 * key[2]
-        per_k = L * (2.7e-5 * k * k + 6.8e-8 * k ** 3)
+        L, k, n_b = key[1], 6 * key[2], key[1] * key[2]
+        per_k = L * (1.44e-8 * k * k + 2.08e-10 * k ** 3)
     if m_pad is None:
-        m_pad = COLUMNS_PER_BRICK * (key[1] if key[0] == "dense" else L * key[2])
-    return iters * 1e-3 * (0.67e-3 * m_pad + per_k)
+        m_pad = COLUMNS_PER_BRICK * n_b
+    if iters is None:
+        iters = 6.1 + 3.9 * np.log(max(n_b, 1))
+    return float(iters * (0.45e-6 * m_pad + per_k))
 
 
 def _fits(key: tuple, size: tuple) -> bool:
@@ -693,8 +705,11 @@ def merge_plans(sizes: dict, compile_s: float = COMPILE_S, ready=frozenset(), m_
     compiled. ``pieces(key, m_pad, count) -> [padded batch size of each
     piece]`` says how a bucket of ``count`` layouts is cut into batches
     (default: one unpadded batch), so that a merge which pads a batch to
-    the next power of two, or adds a batch size, pays for it. The smallest
-    buckets move first, each to the cheapest target. A bucket in ``ready``
+    the next power of two, or adds a batch size, pays for it. The dense
+    buckets are cut into runs of consecutive sizes, each solved in its
+    largest bucket, at the least estimated time (dynamic programming over
+    the chain); then the other buckets move, the smallest first, each to
+    the cheapest target. A bucket in ``ready``
     (its solvers compiled already: in this process or on disk) costs only
     ``load_s`` per batch size it had. With ``compile_s`` = 0 and no
     bucket ready nothing moves."""
@@ -713,7 +728,37 @@ def merge_plans(sizes: dict, compile_s: float = COMPILE_S, ready=frozenset(), m_
         p = cut(k, m, c)
         return sum(p) * plan_seconds(k, m) + sum(load_s if s in have[k] else compile_s for s in set(p))
 
+    def move(k, t):
+        for j in target:
+            if target[j] == k:
+                target[j] = t
+        count[t] += count[k]
+        sizes[t] += sizes[k]
+        if m_pads[t] is not None:
+            m_pads[t] = max(m_pads[t], m_pads[k] or 0)
+
+    # the dense buckets are a chain (a layout fits every larger one): its cheapest cut into
+    # runs, each solved in its largest bucket, by dynamic programming (moves one at a time
+    # cascade up the chain, or jump into a far larger bucket that is compiled anyway)
+    dense = sorted((k for k in sizes if k[0] == "dense"), key=lambda k: k[1])
+    total, start = [0.0], []
+    for j, t in enumerate(dense):
+        def run(i):
+            m = None if m_pads[t] is None else max(m_pads[g] or 0 for g in dense[i: j + 1])
+            return total[i] + cost(t, m, sum(count[g] for g in dense[i: j + 1]))
+        v, i = min((run(i), -i) for i in range(j + 1))  # ties: the shorter run
+        total.append(v)
+        start.append(-i)
+    j = len(dense) - 1
+    while j >= 0:
+        for g in dense[start[j]: j]:
+            move(g, dense[j])
+        j = start[j] - 1
+
+    # the rest, smallest first, each into the cheapest bucket that takes it
     for k in sorted(sizes, key=lambda k: (count[k], plan_seconds(k, m_pads[k]))):
+        if target[k] != k:
+            continue
         best, best_extra = None, 0.0
         alone = cost(k, m_pads[k], count[k])
         for t in sizes:
@@ -724,13 +769,7 @@ def merge_plans(sizes: dict, compile_s: float = COMPILE_S, ready=frozenset(), m_
             if extra < best_extra:
                 best, best_extra = t, extra
         if best is not None:
-            for j in target:
-                if target[j] == k:
-                    target[j] = best
-            count[best] += count[k]
-            sizes[best] += sizes[k]
-            if m_pads[best] is not None:
-                m_pads[best] = max(m_pads[best], m_pads[k] or 0)
+            move(k, best)
     return target
 
 
