@@ -67,7 +67,7 @@ from .solvers.problem import (
 __all__ = ["find_layouts", "read_results", "ScoreStats", "iter_analyses", "analyze_many", "score_files",
            "batch_solver_fn", "batch_sizes", "plan_bytes", "parse_shard", "in_shard", "cpu_cores",
            "RESULT_PREFIX", "SolveUnit", "solve_units", "compiled_ready", "assign_units", "POOL_MIN",
-           "auto_split", "CPU_CACHE_BYTES", "DEVICE_CACHE_BYTES"]
+           "auto_split", "CPU_CACHE_BYTES", "DEVICE_CACHE_BYTES", "worker_order"]
 
 LAYOUT_EXTS = (".json", ".txt", ".ldr")
 # files that sit beside StableLego layouts but are not layouts
@@ -629,11 +629,13 @@ def _unit_results(unit: SolveUnit, solver, params, opts, first_cap, fallback) ->
 
 def assign_units(units: Sequence[SolveUnit], jobs: int, compile_s: float = COMPILE_S, ready=None) -> list:
     """Worker index of each unit: longest first, each to the worker that
-    would finish it soonest, a worker that has not compiled the unit's
-    bucket paying ``compile_s`` for it (so a bucket's pieces stay on one
-    worker unless splitting it pays), or ``LOAD_S`` where ``ready`` (see
+    would finish it soonest. The first worker to take a unit of a shape
+    pays ``compile_s`` for it, or ``LOAD_S`` where ``ready`` (see
     :func:`solve_units`; one device per worker) says its executable is
-    compiled already, on disk."""
+    compiled already, on disk; any other worker that takes a unit of that
+    shape pays ``LOAD_S``: it solves such units after its own shapes
+    (:func:`worker_order`), by when the first has compiled the shape and
+    written it to the disk cache."""
     load = [0.0] * jobs
     shapes: list = [set() for _ in range(jobs)]
     out = [0] * len(units)
@@ -641,8 +643,8 @@ def assign_units(units: Sequence[SolveUnit], jobs: int, compile_s: float = COMPI
         un = units[u]
         key = (un.key, un.m_pad, un.p_pad, un.c_pad)
         new = compile_s
-        if ready is not None and ready(un.key, un.m_pad, un.p_pad, un.c_pad, {batch_rung(len(un.items), 1, un.bsz)},
-                                       un.items[0][2]):
+        if any(key in sh for sh in shapes) or (ready is not None and ready(
+                un.key, un.m_pad, un.p_pad, un.c_pad, {batch_rung(len(un.items), 1, un.bsz)}, un.items[0][2])):
             new = LOAD_S
         cost = [load[w] + un.seconds() + (0.0 if key in shapes[w] else new) for w in range(jobs)]
         w = min(range(jobs), key=cost.__getitem__)
@@ -652,20 +654,38 @@ def assign_units(units: Sequence[SolveUnit], jobs: int, compile_s: float = COMPI
     return out
 
 
+def worker_order(units: Sequence[SolveUnit], where: Sequence[int]) -> list:
+    """Indices of ``units`` in the order their workers (``where``, from
+    :func:`assign_units`) solve them: each worker first the units of the
+    shapes it compiles itself (those whose longest unit it took: it is
+    that shape's first taker), in the given order, then its share of
+    shapes another worker compiles, read from the disk cache."""
+    owner: dict = {}
+    for u in sorted(range(len(units)), key=lambda k: -units[k].seconds()):
+        un = units[u]
+        owner.setdefault((un.key, un.m_pad, un.p_pad, un.c_pad), where[u])
+
+    def late(u):
+        un = units[u]
+        return owner[(un.key, un.m_pad, un.p_pad, un.c_pad)] != where[u]
+
+    return sorted(range(len(units)), key=lambda u: (late(u), u))
+
+
 def _jax_pool(units, jobs, solver, params, opts, first_cap, fallback, st, ready=None) -> Iterator[list]:
     """The units over ``jobs`` spawned worker processes, one device (and one
     XLA pool thread) each; every worker solves the units
     :func:`assign_units` gives it (``ready``: which shapes are on disk), in
-    order, so it compiles each of its shapes once. Yields each unit's
-    results as it finishes."""
+    :func:`worker_order`, so each shape is compiled once, by one worker.
+    Yields each unit's results as it finishes."""
     where = assign_units(units, jobs, ready=ready)
     ctx = multiprocessing.get_context("spawn")
     pools = [concurrent.futures.ProcessPoolExecutor(1, mp_context=ctx, initializer=_ignore_sigint)
              for _ in range(jobs)]
     futs = []
     try:
-        for u, w in zip(units, where):
-            futs.append(pools[w].submit(_unit_results, u, solver, params, opts, first_cap, fallback))
+        for u in worker_order(units, where):
+            futs.append(pools[where[u]].submit(_unit_results, units[u], solver, params, opts, first_cap, fallback))
         for fut in concurrent.futures.as_completed(futs):
             out, wst = fut.result()
             st.add_solver_counts(wst)

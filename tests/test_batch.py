@@ -351,9 +351,11 @@ def test_assign_units_keeps_a_bucket_together_unless_splitting_pays():
 
 
 def test_assign_units_charges_a_load_for_a_shape_on_disk():
-    """A shape whose executable is on disk costs a worker a load, not a
-    compile, so a cheap bucket's pieces spread once a worker falls behind."""
-    from stablelego_jax.batch import SolveUnit, assign_units
+    """A shape whose executable is on disk, or that another worker compiles
+    first, costs a worker a load, not a compile: a cheap bucket's pieces
+    spread once a worker falls behind; each worker solves its share of a
+    shape compiled elsewhere after its own shapes."""
+    from stablelego_jax.batch import SolveUnit, assign_units, worker_order
 
     class Timed(SolveUnit):  # bsz stands for the unit's seconds
         def seconds(self):
@@ -361,13 +363,21 @@ def test_assign_units_charges_a_load_for_a_shape_on_disk():
 
     big = Timed(("layered", 16, 16), 512, 8, 11, [(0, None, None)])
     pieces = [Timed(("dense", 8), 64, 8, 2, [(k, None, None)]) for k in range(1, 8)]
-    # compiling: the 7 pieces (14 s) stay on the free worker; a second compile never pays
-    assert assign_units([big] + pieces, 2) == [0] + [1] * 7
-    # on disk: the big unit costs 11.4 s, the free worker passes it after 6 pieces
+    # worker 1 compiles the pieces' shape (8 s) and solves 6 of them (20 s); worker 0
+    # (11 s compile and solve later) takes the 7th from disk: 11 + 8 + 2 + 0.4 < 20 + 2
+    cold = assign_units([big] + pieces, 2)
+    assert cold == [0] + [1] * 6 + [0]
     asked = []
     warm = assign_units([big] + pieces, 2, ready=lambda *a: asked.append(a[:4]) or True)
     assert warm == [0] + [1] * 6 + [0]
     assert asked[0] == (("layered", 16, 16), 512, 8, None)
+    # worker 0 solves the big unit first, then the piece worker 1 compiled
+    units = pieces + [big]  # given order: the 7th piece before the big unit
+    where = assign_units(units, 2)
+    order = worker_order(units, where)
+    assert sorted(order) == list(range(len(units)))
+    on0 = [units[u] for u in order if where[u] == 0]
+    assert on0[0] is big and all(u.key == ("dense", 8) for u in on0[1:]) and len(on0) == 2
 
 
 def test_jax_pool_gives_the_same_answers():
