@@ -207,7 +207,7 @@ def batch_sizes(per_layout: int, batch: int, n_dev: int, mem_budget: float = 2e9
     members run one after the other anyway) and loses twice, running every
     member for its slowest member's iterations and passing over Newton
     matrices that no longer fit in the core's cache (BENCHMARKS.md, session
-    32: batches of 1-4 solve 1.3-3.7x faster per layout than 32-64). On an
+    32: batches of 1-4 solve 1.3-4.8x faster per layout than 32-64). On an
     accelerator, members whose working set exceeds
     :data:`DEVICE_CACHE_BYTES` / 2 go one per device: their factorisations
     already keep it busy, and a batch would only run every member for its

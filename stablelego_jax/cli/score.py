@@ -25,7 +25,8 @@ def add_parser(sub, methods, exact_methods) -> None:
     sc.add_argument("--exact-method", choices=list(exact_methods), default="highs",
                     help="HiGHS method of --solver exact where it solves the LP (default highs: HiGHS chooses); "
                          "the canonical distribution (the default) is solved by Clarabel whatever this says")
-    sc.add_argument("--batch", type=int, default=64, help="most layouts per solver call (default 64)")
+    sc.add_argument("--batch", type=int, default=64, help="most layouts per solver call (default 64; on a CPU fewer: a "
+                    "batch holds each core's share within 4 MB, one layout a call for all but the smallest)")
     sc.add_argument("--devices", default="all", help="'all' or the number of local devices to shard over")
     sc.add_argument("--jobs", type=int, default=None,
                     help="worker processes, every solver, from 32 layouts up (default: every core); "
