@@ -11,7 +11,9 @@ pieces); the times of those steps are printed (read, force models,
 planning: the parent's work before any solve). Then for two dense and two
 layered buckets of the plan, the batched solver of its first piece is
 lowered and compiled with every cache off (``STABLELEGO_CACHE=0``, no
-persistent XLA cache), run once, and timed on a second run. One OpenBLAS
+persistent XLA cache), run once, and timed on a second run; the compiled
+program's kernels are counted (``fusions``: XLA's compile time grows with
+them). One OpenBLAS
 thread. XLA flags (``XLA_FLAGS``, e.g.
 ``--xla_backend_optimization_level=0``) apply as set in the environment.
 """
@@ -82,8 +84,10 @@ def main() -> None:
         s3 = time.perf_counter()
         sol = Solution(*jax.block_until_ready(exe(*arrays)))
         s4 = time.perf_counter()
+        hlo = exe.as_text()
         row = dict(batch=size, lower_s=round(s1 - s0, 2), compile_s=round(s2 - s1, 2), solve_s=round(s4 - s3, 3),
-                   iters=int(np.max(sol.iters)))
+                   iters=int(np.max(sol.iters)), fusions=hlo.count(" fusion("),
+                   hlo_lines=hlo.count("\n"))
         out["shapes"][str(k)] = row
         print(k, json.dumps(row), flush=True)
         jax.clear_caches()

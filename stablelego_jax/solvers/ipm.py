@@ -33,6 +33,7 @@ solver (forces in N, objective and dual bound in N-based units).
 from __future__ import annotations
 
 import dataclasses
+import functools
 
 import jax
 import jax.numpy as jnp
@@ -95,27 +96,42 @@ class IPMOptions:
 
 
 def _system(prob: Problem, params: Params, opts: IPMOptions) -> dict:
-    """The pieces of the interior-point method for one problem (closures)."""
+    """The pieces of the interior-point method for one problem (closures).
+
+    Every vector is flat, so one operation on all of them compiles to one
+    kernel instead of one per part (XLA's compile time grows with the number
+    of kernels): the primal variables ``z = [x, D, t, r+, r-]`` (lengths
+    m, m, n, 6 n, 6 n; length ``2 m + 13 n``) and the slacks and their duals
+    ``s = G(z) = [x + D, D, t_owner - D, x, t, r+, r-]`` (lengths m, m, m,
+    m, n, 6 n, 6 n), with ``act`` (1: the inequality exists)."""
     dtype = jnp.dtype(opts.dtype)
     prob = prob._replace(col_coef=prob.col_coef.astype(dtype), gravity=prob.gravity.astype(dtype))
     A, At, coef, g, w = operators(prob, params)
     n, m = g.shape[0], prob.col_kind.shape[0]
     L = 1 if prob.layers is None else prob.layers.shape[0]
     k6 = 6 * (n // L)
-    w = jnp.where(prob.brick_mask[:, None], w, 1.0)  # padding rows: r = 0 at unit cost
+    w = jnp.where(prob.brick_mask[:, None], w, 1.0).reshape(-1)  # padding rows: r = 0 at unit cost
     kind, cmask = prob.col_kind, prob.col_mask
     act_n = ((kind == NORMAL) & cmask).astype(dtype)
     act_s = ((kind == SIDE) & cmask).astype(dtype)
+    zeros = functools.partial(jnp.zeros, dtype=dtype)
     # D exists on NORMAL contacts only (elsewhere it stays 0 and has no cost)
-    act = (act_n, act_n, act_n, act_s, jnp.ones((n,), dtype),
-           jnp.ones((n, 6), dtype), jnp.ones((n, 6), dtype))
-    n_act = sum(a.sum() for a in act)
+    act = jnp.concatenate([act_n, act_n, act_n, act_s, jnp.ones((13 * n,), dtype)])
+    on = act > 0
+    n_act = act.sum()
     group = prob.group
     owner = jnp.zeros((m + 1,), jnp.int32).at[group].set(
         jnp.broadcast_to(jnp.arange(n, dtype=jnp.int32)[:, None], group.shape))[:m]
+    xsel = jnp.concatenate([jnp.ones((m,), dtype), zeros(m + 13 * n)])  # the forces' entries of z
 
     def segsum(v):  # (m,) per-contact -> (n,) per owning brick
         return jnp.concatenate([v, jnp.zeros((1,), v.dtype)])[group].sum(axis=1)
+
+    def parts(v):  # slack-space vector -> its 7 parts (flat)
+        return jnp.split(v, [m, 2 * m, 3 * m, 4 * m, 4 * m + n, 4 * m + 7 * n])
+
+    def zparts(z):  # primal vector -> x, D, t, r+, r- (flat)
+        return jnp.split(z, [m, 2 * m, 2 * m + n, 2 * m + 7 * n])
 
     alpha, beta = params.alpha, params.beta
     # the canonical term on the forces: ridge / (total weight, in T) (see Params)
@@ -126,39 +142,35 @@ def _system(prob: Problem, params: Params, opts: IPMOptions) -> dict:
                               prob.supports, prob.col_slot)
 
     def G(z):
-        x, Dv, t, rp, rm = z
-        return (x + Dv, Dv, t[owner] - Dv, x, t, rp, rm)
+        x, Dv, t = z[:m], z[m:2 * m], z[2 * m:2 * m + n]
+        return jnp.concatenate([x + Dv, Dv, t[owner] - Dv, x, z[2 * m:]])
 
     def Gt(v):
-        v = tuple(a * b for a, b in zip(v, act))
-        return (v[0] + v[3], v[0] + v[1] - v[2], segsum(v[2]) + v[4], v[5], v[6])
+        v1, v2, v3, v4, v5, v67 = jnp.split(v * act, [m, 2 * m, 3 * m, 4 * m, 4 * m + n])
+        return jnp.concatenate([v1 + v4, v1 + v2 - v3, segsum(v3) + v5, v67])
 
     def Et(nu):
-        return (At(nu), jnp.zeros((m,), dtype), jnp.zeros((n,), dtype), -nu, nu)
+        nu = nu.reshape(-1)
+        return jnp.concatenate([At(nu.reshape(n, 6)), zeros(m + n), -nu, nu])
 
     def Ez(z):
-        return A(z[0]) - z[3] + z[4]
+        x, _, _, rp, rm = zparts(z)
+        return A(x) - (rp - rm).reshape(n, 6)
 
-    def cost():
-        return (jnp.zeros((m,), dtype), beta * act_n, jnp.full((n,), alpha, dtype), w, w)
-
-    cvec = cost()
+    cvec = jnp.concatenate([zeros(m), beta * act_n, jnp.full((n,), alpha, dtype), w, w])
 
     def dot(a, b):
-        return sum((x * y).sum() for x, y in zip(a, b))
+        return (a * b).sum()
 
     def grad(z):  # gradient of the cost: c + (reg x, 0, ...)
-        return (cvec[0] + reg * z[0],) + cvec[1:]
+        return cvec + reg * xsel * z
 
     def residuals(z, nu, lam):
-        rd = jax.tree_util.tree_map(lambda c, gl, e: c - gl + e, grad(z), Gt(lam), Et(nu))
-        rp = Ez(z) + g
-        return rd, rp
+        return grad(z) - Gt(lam) + Et(nu), Ez(z) + g
 
     def factor(z, lam):
-        s = G(z)
-        Wt = tuple(jnp.where(a > 0, l_ / s_, 0.0) for l_, s_, a in zip(lam, s, act))
-        W1, W2, W3, W4, W5, W6, W7 = Wt
+        Wt = jnp.where(on, lam / G(z), 0.0)
+        W1, W2, W3, W4, W5, W6, W7 = parts(Wt)
         # proximal term of the forces; the plain LP (ridge 0) gives them no curvature of their own
         d = opts.delta if params.ridge > 0 else max(opts.delta, 1e-8)
         hx = W1 + W4 + d + reg
@@ -180,18 +192,17 @@ def _system(prob: Problem, params: Params, opts: IPMOptions) -> dict:
 
     def hinv(f, b):
         Wt, hx, a, gam, _, _ = f
-        W1, W3, W6, W7 = Wt[0], Wt[2], Wt[5], Wt[6]
-        bx, bD, bt, brp, brm = b
+        W1, _, W3 = Wt[:m], Wt[m:2 * m], Wt[2 * m:3 * m]
+        bx, bD, bt = b[:m], b[m:2 * m], b[2 * m:2 * m + n]
         bD2 = bD - W1 * bx / hx
         at = (bt + segsum(W3 * bD2 / a)) / gam
         aD = act_n * (bD2 + W3 * at[owner]) / a
         ax = (bx - W1 * aD) / hx
-        return (ax, aD, at, brp / W6, brm / W7)
+        return jnp.concatenate([ax, aD, at, b[2 * m + n:] / Wt[4 * m + n:]])
 
     def newton(f, rhs1, rp_res):
         C, Gf = f[4], f[5]
-        h = hinv(f, rhs1)
-        r = Ez(h) + rp_res
+        r = Ez(hinv(f, rhs1)) + rp_res
 
         def msolve(v):
             return block_solve(C, Gf, v.reshape(L, k6)).reshape(n, 6)
@@ -203,36 +214,32 @@ def _system(prob: Problem, params: Params, opts: IPMOptions) -> dict:
         dnu = msolve(r)
         for _ in range(opts.refine):
             dnu = dnu + msolve(r - Ez(hinv(f, Et(dnu))))
-        dz = hinv(f, jax.tree_util.tree_map(lambda a, b: a - b, rhs1, Et(dnu)))
-        return dz, dnu
+        return hinv(f, rhs1 - Et(dnu)), dnu
 
     def direction(f, z, lam, rd, rp_res, rc):
         s = G(z)
-        rcs = tuple(jnp.where(ac > 0, r_ / s_, 0.0) for r_, s_, ac in zip(rc, s, act))
-        rhs1 = jax.tree_util.tree_map(lambda a, b: -a - b, rd, Gt(rcs))
+        rhs1 = -rd - Gt(jnp.where(on, rc / s, 0.0))
         dz, dnu = newton(f, rhs1, rp_res)
         ds = G(dz)
-        dlam = tuple(jnp.where(ac > 0, -(r_ + l_ * d_) / s_, 0.0)
-                     for r_, l_, d_, s_, ac in zip(rc, lam, ds, s, act))
+        dlam = jnp.where(on, -(rc + lam * ds) / s, 0.0)
         return dz, dnu, ds, dlam
 
     def max_step(v, dv):
-        ratios = [jnp.where((ac > 0) & (b < 0), -a / jnp.where(b < 0, b, -1.0), jnp.inf)
-                  for a, b, ac in zip(v, dv, act)]
-        return jnp.minimum(1.0, jnp.stack([r.min() for r in ratios]).min())
+        ratio = jnp.where(on & (dv < 0), -v / jnp.where(dv < 0, dv, -1.0), jnp.inf)
+        return jnp.minimum(1.0, ratio.min())
 
     def measures(z, nu, lam):
         rd, rp_res = residuals(z, nu, lam)
-        q = reg * (z[0] * z[0]).sum()
+        q = reg * (xsel * z * z).sum()
         obj = dot(cvec, z) + q / 2
         dual = (nu * g).sum() - q / 2  # the QP's (Wolfe) dual value
         pres = jnp.abs(rp_res).max()
-        dres = jnp.stack([jnp.abs(r).max() for r in rd]).max()
+        dres = jnp.abs(rd).max()
         # complementarity gap sum(s lam): the duality gap once residuals vanish (the
         # regularisation of free forces leaves ~delta |dx| in the dual residual, which
         # inflates obj - nu'g on statically indeterminate layouts without an error
         # in the forces)
-        comp = dot(G(z), tuple(l_ * a for l_, a in zip(lam, act)))
+        comp = dot(G(z), lam * act)
 
         def gap_ok(eps_abs, eps_rel):
             tol = eps_abs + eps_rel * jnp.abs(obj)
@@ -247,16 +254,15 @@ def _system(prob: Problem, params: Params, opts: IPMOptions) -> dict:
         """Equality-feasible, strictly interior starting point (z, nu, lam)."""
         k0 = opts.init
         x0 = jnp.where(act_s > 0, k0, 0.0)
-        r0 = A(x0) + g
+        r0 = (A(x0) + g).reshape(-1)
         rp0 = jnp.maximum(r0, 0.0) + k0
-        z0 = (x0, k0 * act_n, jnp.full((n,), 2 * k0, dtype), rp0, rp0 - r0)
+        z0 = jnp.concatenate([x0, k0 * act_n, jnp.full((n,), 2 * k0, dtype), rp0, rp0 - r0])
         # duals that zero the dual residual of r+-, D and t at nu = 0
-        cnt = jnp.maximum(segsum(act[0]), 1.0)
-        l3 = act[0] * (params.alpha / 2) / cnt[owner]
-        lam0 = (l3 / 2, params.beta + l3 / 2, l3, act_s * k0, jnp.full((n,), params.alpha / 2, dtype), w, w)
-        lam0 = tuple(jnp.where(a > 0, l_, 1.0) for l_, a in zip(lam0, act))
-        nu0 = jnp.zeros((n, 6), dtype)
-        return z0, nu0, lam0
+        cnt = jnp.maximum(segsum(act_n), 1.0)
+        l3 = act_n * (params.alpha / 2) / cnt[owner]
+        lam0 = jnp.concatenate([l3 / 2, params.beta + l3 / 2, l3, act_s * k0,
+                                jnp.full((n,), params.alpha / 2, dtype), w, w])
+        return z0, jnp.zeros((n, 6), dtype), jnp.where(on, lam0, 1.0)
 
     return dict(locals())
 
@@ -270,7 +276,7 @@ def solve(prob: Problem, params: Params = Params(), opts: IPMOptions = IPMOption
     see :func:`~stablelego_jax.solvers.problem.to_layered`); None or L = 1: dense.
     """
     K = _system(prob, params, opts)
-    act, dtype, dot, n_act = K["act"], K["dtype"], K["dot"], K["n_act"]
+    act, dot, n_act, m = K["act"], K["dot"], K["n_act"], K["m"]
     measures, G, factor, direction, max_step = K["measures"], K["G"], K["factor"], K["direction"], K["max_step"]
     z0, nu0, lam0 = K["start"]()
 
@@ -278,23 +284,21 @@ def solve(prob: Problem, params: Params = Params(), opts: IPMOptions = IPMOption
         # the residuals at the iterate come from the previous iteration's measures
         z, nu, lam, rd, rp_res = c["z"], c["nu"], c["lam"], c["rd"], c["rp"]
         s = G(z)
-        mu = dot(s, tuple(l_ * a for l_, a in zip(lam, act))) / n_act
+        mu = dot(s, lam * act) / n_act
         f = factor(z, lam)
         # predictor
-        rc = tuple(s_ * l_ * a for s_, l_, a in zip(s, lam, act))
+        rc = s * lam * act
         dz, dnu, ds, dlam = direction(f, z, lam, rd, rp_res, rc)
         ap, ad = max_step(s, ds), max_step(lam, dlam)
-        mu_aff = dot(tuple(s_ + ap * d_ for s_, d_ in zip(s, ds)),
-                     tuple((l_ + ad * d_) * a for l_, d_, a in zip(lam, dlam, act))) / n_act
+        mu_aff = dot(s + ap * ds, (lam + ad * dlam) * act) / n_act
         sigma = jnp.clip((mu_aff / mu) ** 3, 0.0, 1.0)
         # corrector
-        rc = tuple((s_ * l_ + d1 * d2 - sigma * mu) * a
-                   for s_, l_, d1, d2, a in zip(s, lam, ds, dlam, act))
+        rc = (s * lam + ds * dlam - sigma * mu) * act
         dz, dnu, ds, dlam = direction(f, z, lam, rd, rp_res, rc)
         ap = opts.step * max_step(s, ds)
         ad = opts.step * max_step(lam, dlam)
-        z = jax.tree_util.tree_map(lambda a, b: a + ap * b, z, dz)
-        lam = tuple(l_ + ad * d_ for l_, d_ in zip(lam, dlam))
+        z = z + ap * dz
+        lam = lam + ad * dlam
         nu = nu + ad * dnu
         (ok, fine), pres, dres, obj, dual, rd, rp_res = measures(z, nu, lam)
         new = dict(z=z, nu=nu, lam=lam, rd=rd, rp=rp_res, it=c["it"] + 1, done=fine, ok=ok, pres=pres, dres=dres,
@@ -305,11 +309,11 @@ def solve(prob: Problem, params: Params = Params(), opts: IPMOptions = IPMOption
         old = dict(c, it=c["it"] + 1, done=True)
         return jax.tree_util.tree_map(lambda u, v: jnp.where(bad, u, v), old, new)
 
-    big = jnp.asarray(jnp.inf, dtype)
+    big = jnp.asarray(jnp.inf, K["dtype"])
     rd0, rp0 = K["residuals"](z0, nu0, lam0)
     c0 = dict(z=z0, nu=nu0, lam=lam0, rd=rd0, rp=rp0, it=jnp.asarray(0), done=jnp.asarray(False),
               ok=jnp.asarray(False), pres=big, dres=big, obj=big, dual=-big)
     c = jax.lax.while_loop(lambda c: (~c["done"]) & (c["it"] < opts.max_iter), body, c0)
     gap = (c["obj"] - c["dual"]) / jnp.maximum(jnp.abs(c["obj"]), 1e-12)
     cost = dot(K["cvec"], c["z"])  # the Eq. 9 value, without the least-norm term
-    return make_solution(prob, params, c["z"][0], c["it"], c["ok"], c["pres"], c["dres"], cost, c["dual"], gap)
+    return make_solution(prob, params, c["z"][:m], c["it"], c["ok"], c["pres"], c["dres"], cost, c["dual"], gap)
