@@ -13,7 +13,9 @@ layered buckets of the plan, the batched solver of its first piece is
 lowered and compiled with every cache off (``STABLELEGO_CACHE=0``, no
 persistent XLA cache), run once, and timed on a second run; the compiled
 program's kernels are counted (``fusions``: XLA's compile time grows with
-them). One OpenBLAS
+them). The library's XLA options
+(:func:`stablelego_jax.runtime.compiler_options`) apply unless
+``--xla-defaults``. One OpenBLAS
 thread. XLA flags (``XLA_FLAGS``, e.g.
 ``--xla_backend_optimization_level=0``) apply as set in the environment.
 """
@@ -38,7 +40,10 @@ def main() -> None:
     ap.add_argument("--inputs", default=os.path.join(HERE, "results", "shard1000"))
     ap.add_argument("--n", type=int, default=400)
     ap.add_argument("--json", help="write the results here too")
+    ap.add_argument("--xla-defaults", action="store_true", help="compile with XLA's default options")
     a = ap.parse_args()
+    if a.xla_defaults:
+        os.environ["STABLELEGO_XLA_DEFAULTS"] = "1"
     t0 = time.perf_counter()
     import jax
     import numpy as np
@@ -46,6 +51,7 @@ def main() -> None:
     from stablelego_jax import batch
     from stablelego_jax.formats.reader import load_layout
     from stablelego_jax.model import Params, compile_layout
+    from stablelego_jax.runtime import compiler_options
     from stablelego_jax.solvers import ipm
     from stablelego_jax.solvers.problem import Solution, batch_rung, plan_problem, stack_problems
 
@@ -62,7 +68,7 @@ def main() -> None:
     t4 = time.perf_counter()
     out = dict(files=len(files), imports_s=round(t1 - t0, 2), read_s=round(t2 - t1, 2),
                force_models_s=round(t3 - t2, 2), plan_s=round(t4 - t3, 2), units=len(units),
-               xla_flags=os.environ.get("XLA_FLAGS", ""), shapes={})
+               xla_flags=os.environ.get("XLA_FLAGS", ""), compiler_options=compiler_options(), shapes={})
     print(json.dumps({k: v for k, v in out.items() if k != "shapes"}), flush=True)
     first: dict = {}
     for u in units:
@@ -78,7 +84,7 @@ def main() -> None:
         s0 = time.perf_counter()
         lowered = jax.jit(fn).lower(*arrays)
         s1 = time.perf_counter()
-        exe = lowered.compile()
+        exe = lowered.compile(compiler_options())
         s2 = time.perf_counter()
         jax.block_until_ready(exe(*arrays))
         s3 = time.perf_counter()

@@ -12,6 +12,11 @@ scope, and a persistent cache of compiled solvers.
   (``~/.cache/stablelego-jax``); ``STABLELEGO_CACHE=0`` turns the disk
   cache off. :func:`use_persistent_cache` points JAX's persistent
   compilation cache there unless the user configured one.
+* :func:`compiler_options` are the XLA options the library compiles its
+  solvers with (on a CPU: :data:`CPU_COMPILER_OPTIONS`), in
+  :func:`stablelego_jax.solvers.compiled.compiled`; functions that may run
+  inside a user's ``jax.jit`` (:func:`x64_differentiable`) cannot carry
+  options and compile with XLA's defaults.
 """
 from __future__ import annotations
 
@@ -23,7 +28,37 @@ import os
 import jax
 import numpy as np
 
-__all__ = ["x64", "x64_differentiable", "float64", "cache_dir", "use_persistent_cache"]
+__all__ = ["x64", "x64_differentiable", "float64", "cache_dir", "use_persistent_cache", "compiler_options",
+           "CPU_COMPILER_OPTIONS"]
+
+#: XLA options for the library's programs on a CPU backend: XLA's LLVM IR
+#: fusion emitters instead of its newer MLIR ones. On this project's
+#: interior points they compile 20-35% faster (1.7-2.3 s against 2.4-2.9 s a
+#: shape), with 15-20% fewer kernels and the same solve time
+#: (``benchmarks/compile_shapes.py`` with and without ``--xla-defaults``,
+#: BENCHMARKS.md).
+CPU_COMPILER_OPTIONS = {"xla_cpu_use_fusion_emitters": False}
+
+
+@functools.lru_cache(maxsize=None)
+def _accepted(backend: str) -> tuple:
+    if backend != "cpu":
+        return ()
+    try:  # an XLA that no longer knows an option refuses to compile with it
+        jax.jit(lambda v: v + 1).lower(np.zeros(1)).compile(compiler_options=dict(CPU_COMPILER_OPTIONS))
+    except Exception:  # noqa: BLE001 - jaxlib raises its own error types
+        return ()
+    return tuple(CPU_COMPILER_OPTIONS.items())
+
+
+def compiler_options() -> dict:
+    """XLA options for the library's compiles on the default backend:
+    :data:`CPU_COMPILER_OPTIONS` on a CPU whose XLA accepts them (checked
+    once per process with a one-line program), none elsewhere. Set
+    ``STABLELEGO_XLA_DEFAULTS=1`` to compile with XLA's defaults."""
+    if os.environ.get("STABLELEGO_XLA_DEFAULTS", "").strip().lower() in ("1", "yes", "true", "on"):
+        return {}
+    return dict(_accepted(jax.default_backend()))
 
 
 def float64():

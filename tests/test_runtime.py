@@ -282,3 +282,39 @@ def test_a_solver_read_from_disk_leaves_jax_tracing_caches_alone(monkeypatch, tm
         np.testing.assert_array_equal(np.asarray(exe(np.ones(3))[0]), np.full(3, 5.0))
     finally:
         C.clear()
+
+
+def test_compiler_options_on_cpu_and_how_to_turn_them_off(monkeypatch):
+    from stablelego_jax import runtime
+
+    assert jax.default_backend() == "cpu"
+    assert runtime.compiler_options() == runtime.CPU_COMPILER_OPTIONS
+    monkeypatch.setenv("STABLELEGO_XLA_DEFAULTS", "1")
+    assert runtime.compiler_options() == {}
+    monkeypatch.delenv("STABLELEGO_XLA_DEFAULTS")
+    # an XLA that does not know an option: compile with its defaults, no error
+    monkeypatch.setattr(runtime, "CPU_COMPILER_OPTIONS", {"xla_cpu_no_such_option": False})
+    runtime._accepted.cache_clear()
+    try:
+        assert runtime.compiler_options() == {}
+    finally:
+        monkeypatch.undo()
+        runtime._accepted.cache_clear()
+    assert runtime.compiler_options() == runtime.CPU_COMPILER_OPTIONS
+
+
+def test_compiled_solvers_get_the_compiler_options(monkeypatch):
+    seen = []
+    real = jax.stages.Lowered.compile
+
+    def spy(self, compiler_options=None, **kw):
+        seen.append(compiler_options)
+        return real(self, compiler_options, **kw)
+
+    monkeypatch.setenv("STABLELEGO_CACHE", "0")
+    monkeypatch.setattr(jax.stages.Lowered, "compile", spy)
+    exe = C.compiled("test_options", lambda v: (v * 2,), None, (np.ones(3),), export=False)
+    np.testing.assert_allclose(exe(np.ones(3))[0], 2.0)
+    from stablelego_jax.runtime import CPU_COMPILER_OPTIONS
+
+    assert seen[-1] == CPU_COMPILER_OPTIONS

@@ -43,7 +43,7 @@ import jax
 import numpy as np
 
 from ..files import atomic_write
-from ..runtime import cache_dir, float64, use_persistent_cache
+from ..runtime import cache_dir, compiler_options, float64, use_persistent_cache
 
 __all__ = ["CompileStats", "STATS", "compiled", "available", "clear", "set_limit", "cache_size", "code_digest",
            "map_budget", "mappings", "release_memory", "drop_tracing_caches"]
@@ -235,7 +235,9 @@ def _exported_call(name: str, fn: Callable, key: tuple, specs: tuple) -> Callabl
 def compiled(name: str, fn: Callable, static: Hashable, args, export: bool = True) -> Callable:
     """An executable of ``fn`` (a pure function of the flat arrays ``args``,
     returning a tuple of arrays) compiled in float64 for their shapes and
-    dtypes. ``name`` and ``static`` (hashable: everything ``fn`` closes
+    dtypes, with the library's XLA options
+    (:func:`~stablelego_jax.runtime.compiler_options`). ``name`` and
+    ``static`` (hashable: everything ``fn`` closes
     over, e.g. parameters and options) identify it. ``export``: also use
     the disk export cache (functions on one device)."""
     specs = _specs(args)
@@ -251,7 +253,7 @@ def compiled(name: str, fn: Callable, static: Hashable, args, export: bool = Tru
         loaded = STATS.loaded
         call = _exported_call(name, fn, key, specs) if export else None
         traced = STATS.loaded == loaded  # fn was traced here, not read from disk
-        aot = jax.jit(call if call is not None else fn).lower(*specs).compile()
+        aot = jax.jit(call if call is not None else fn).lower(*specs).compile(compiler_options())
     STATS.compiles += 1
     STATS.compile_s += time.perf_counter() - t0
 
