@@ -645,12 +645,13 @@ def fit_plan(model: ForceModel, key: tuple, m_pad: int | None = None) -> tuple:
 SINGLE_COMPILE_S = 4.0
 
 
-#: Seconds one compile of a batched interior-point solver takes on a CPU core
-#: (3.5-6 s measured for every shape, small or large, in session 8:
-#: benchmarks/compile_time.py; 8.7-8.9 s per shape on one core of this machine
-#: in session 21); and one load of a compiled solver from the disk cache
-#: (0.34-0.37 s per shape, session 21).
-COMPILE_S = 8.0
+#: Seconds one compile of a batched interior-point solver takes on a CPU core,
+#: tracing and export included: 2.4-2.9 s a shape in ``score``'s pool on this
+#: 2-core CPU in session 33 (flat interior-point vectors and the CPU
+#: compiler options of :mod:`stablelego_jax.runtime`; 3.5-8.9 s before);
+#: and one load of a compiled solver from the disk cache (0.34-0.37 s per
+#: shape, session 21).
+COMPILE_S = 3.0
 LOAD_S = 0.4
 
 #: Columns per padded brick of a typical layout (dense buckets of the small set: 28-54).
