@@ -19,6 +19,7 @@ line is dropped on the next run, which skips every file already present.
 from __future__ import annotations
 
 import concurrent.futures
+import contextlib
 import dataclasses
 import functools
 import hashlib
@@ -67,7 +68,7 @@ from .solvers.problem import (
 __all__ = ["find_layouts", "read_results", "ScoreStats", "iter_analyses", "analyze_many", "score_files",
            "batch_solver_fn", "batch_sizes", "plan_bytes", "parse_shard", "in_shard", "cpu_cores",
            "RESULT_PREFIX", "SolveUnit", "solve_units", "compiled_ready", "assign_units", "POOL_MIN",
-           "auto_split", "CPU_CACHE_BYTES", "DEVICE_CACHE_BYTES", "worker_order"]
+           "auto_split", "CPU_CACHE_BYTES", "DEVICE_CACHE_BYTES", "worker_order", "Workers"]
 
 LAYOUT_EXTS = (".json", ".txt", ".ldr")
 # files that sit beside StableLego layouts but are not layouts
@@ -328,6 +329,7 @@ def iter_analyses(
     merge: bool = True,
     fallback: bool = True,
     jax_jobs: int | None = None,
+    workers: "Workers | None" = None,
 ) -> Iterator[list[tuple[int, object]]]:
     """Analyse many in-memory layouts, batched: yields, per solver call, the
     list of ``(i, Analysis)`` for the ``layouts[i]`` it solved (batches do
@@ -360,6 +362,8 @@ def iter_analyses(
     again, alone (:func:`~stablelego_jax.analysis.resolve_unconverged`: a
     longer run, then the exact solver; its ``solver`` says which answered,
     ``retried`` what did not converge); False yields it as it is.
+    ``workers``: started :class:`Workers` the JAX pool uses (and leaves
+    running) instead of spawning its own.
     """
     solver = pick_solver(solver, method)
     st = stats if stats is not None else ScoreStats()
@@ -387,7 +391,7 @@ def iter_analyses(
     n_jax = sum(len(u.items) for u in units)
     jobs = min(max(1, int(jobs if jax_jobs is None else jax_jobs)), max(len(units), 1))
     if jobs > 1 and n_dev == 1 and n_jax >= POOL_MIN:
-        yield from _jax_pool(units, jobs, solver, params, opts, first_cap, fallback, st, ready)
+        yield from _jax_pool(units, jobs, solver, params, opts, first_cap, fallback, st, ready, workers)
         return
     for unit in units:
         yield from _solve_unit(unit, solver, params, opts, n_dev, first_cap, fallback, st)
@@ -672,16 +676,52 @@ def worker_order(units: Sequence[SolveUnit], where: Sequence[int]) -> list:
     return sorted(range(len(units)), key=lambda u: (late(u), u))
 
 
-def _jax_pool(units, jobs, solver, params, opts, first_cap, fallback, st, ready=None) -> Iterator[list]:
-    """The units over ``jobs`` spawned worker processes, one device (and one
-    XLA pool thread) each; every worker solves the units
+class Workers:
+    """``jobs`` spawned worker processes (one single-process pool each, so a
+    unit goes to the worker :func:`assign_units` chose), started at once and
+    each made ready in the background (JAX imported, its backend and the
+    compilation cache set up, :func:`_ready_worker`), so that their start
+    overlaps the parent's reading and planning. A context manager: leaving
+    it shuts the workers down. Ctrl-C is the parent's to handle."""
+
+    def __init__(self, jobs: int):
+        ctx = multiprocessing.get_context("spawn")
+        self.pools = [concurrent.futures.ProcessPoolExecutor(1, mp_context=ctx, initializer=_ignore_sigint)
+                      for _ in range(jobs)]
+        for pool in self.pools:
+            pool.submit(_ready_worker)
+
+    def close(self) -> None:
+        for pool in self.pools:
+            pool.shutdown(wait=True, cancel_futures=True)
+
+    def __enter__(self) -> "Workers":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+def _ready_worker() -> None:
+    """What a worker's first solve would otherwise wait for: JAX's CPU
+    backend, the persistent compilation cache and the compiler-options check."""
+    from .runtime import compiler_options, use_persistent_cache
+
+    jax.devices()
+    use_persistent_cache()
+    compiler_options()
+
+
+def _jax_pool(units, jobs, solver, params, opts, first_cap, fallback, st, ready=None, workers=None) -> Iterator[list]:
+    """The units over ``jobs`` worker processes, one device (and one XLA
+    pool thread) each: ``workers`` (:class:`Workers`, at least ``jobs``;
+    left running) or spawned here; every worker solves the units
     :func:`assign_units` gives it (``ready``: which shapes are on disk), in
     :func:`worker_order`, so each shape is compiled once, by one worker.
     Yields each unit's results as it finishes."""
     where = assign_units(units, jobs, ready=ready)
-    ctx = multiprocessing.get_context("spawn")
-    pools = [concurrent.futures.ProcessPoolExecutor(1, mp_context=ctx, initializer=_ignore_sigint)
-             for _ in range(jobs)]
+    own = workers is None or len(workers.pools) < jobs
+    pools = Workers(jobs).pools if own else workers.pools[:jobs]
     futs = []
     try:
         for u in worker_order(units, where):
@@ -694,8 +734,9 @@ def _jax_pool(units, jobs, solver, params, opts, first_cap, fallback, st, ready=
     finally:
         for fut in futs:
             fut.cancel()
-        for pool in pools:
-            pool.shutdown(wait=True, cancel_futures=True)
+        if own:
+            for pool in pools:
+                pool.shutdown(wait=True, cancel_futures=True)
 
 
 def _exact_items(items, method, exact_method, exact_scale) -> list:
@@ -806,7 +847,10 @@ def _score_files(
     bar = Progress(len(todo), stream=stream, enabled=progress, unit="layouts")
     d = os.path.dirname(os.path.abspath(out))
     os.makedirs(d, exist_ok=True)
-    with open(out, "a", encoding="utf-8") as fh:
+    # the JAX pool's workers start now, while this process reads and plans
+    pool_jobs = int(jobs) if solver != "exact" and _device_count(devices) == 1 and len(todo) >= POOL_MIN else 1
+    with open(out, "a", encoding="utf-8") as fh, (Workers(pool_jobs) if pool_jobs > 1 else contextlib.nullcontext()) \
+            as workers:
 
         def emit(recs: Iterable[dict]) -> None:
             lines = "".join(json.dumps(r) + "\n" for r in recs)
@@ -834,7 +878,8 @@ def _score_files(
                 st.errors += len(errs)
                 bar.advance(len(errs))
             for part_done in iter_analyses([lay for _, lay, _ in loaded], solver, params, opts, batch, devices,
-                                           exact_method, exact_scale, first_cap, method, stats=st, jobs=jobs):
+                                           exact_method, exact_scale, first_cap, method, stats=st, jobs=jobs,
+                                           workers=workers):
                 recs = []
                 for i, a in part_done:
                     p, lay, report = loaded[i]

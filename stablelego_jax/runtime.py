@@ -41,14 +41,14 @@ CPU_COMPILER_OPTIONS = {"xla_cpu_use_fusion_emitters": False}
 
 
 @functools.lru_cache(maxsize=None)
-def _accepted(backend: str) -> tuple:
+def _accepted(backend: str, options: tuple) -> tuple:
     if backend != "cpu":
         return ()
     try:  # an XLA that no longer knows an option refuses to compile with it
-        jax.jit(lambda v: v + 1).lower(np.zeros(1)).compile(compiler_options=dict(CPU_COMPILER_OPTIONS))
+        jax.jit(lambda v: v + 1).lower(np.zeros(1)).compile(compiler_options=dict(options))
     except Exception:  # noqa: BLE001 - jaxlib raises its own error types
         return ()
-    return tuple(CPU_COMPILER_OPTIONS.items())
+    return options
 
 
 def compiler_options() -> dict:
@@ -58,7 +58,7 @@ def compiler_options() -> dict:
     ``STABLELEGO_XLA_DEFAULTS=1`` to compile with XLA's defaults."""
     if os.environ.get("STABLELEGO_XLA_DEFAULTS", "").strip().lower() in ("1", "yes", "true", "on"):
         return {}
-    return dict(_accepted(jax.default_backend()))
+    return dict(_accepted(jax.default_backend(), tuple(sorted(CPU_COMPILER_OPTIONS.items()))))
 
 
 def float64():

@@ -392,6 +392,16 @@ def test_jax_pool_gives_the_same_answers():
     for a, b in zip(one, two):
         assert (a.stable, a.weakest, a.converged, a.solver) == (b.stable, b.weakest, b.converged, b.solver)
         assert a.scores == b.scores
+    # workers started ahead (as score starts them before reading): the pool
+    # solves on them, the same answers, and leaves them running for the caller
+    from stablelego_jax.batch import Workers
+
+    with Workers(2) as workers:
+        pids = {w.submit(os.getpid).result() for w in workers.pools}
+        three = analyze_many(lays, "jax", jobs=2, workers=workers)
+        assert {w.submit(os.getpid).result() for w in workers.pools} == pids
+    assert len(pids) == 2 and os.getpid() not in pids
+    assert [a.scores for a in three] == [a.scores for a in one]
 
 
 def test_worker_counts_add_up_and_parent_counts_stay():

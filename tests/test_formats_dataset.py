@@ -7,6 +7,7 @@ import pytest
 
 from stablelego_jax.analysis import analyze_layout
 from stablelego_jax.files import current_umask
+from stablelego_jax import render
 from stablelego_jax.formats import dataset
 from stablelego_jax.formats.dataset import OBJECT_FILES, find_objects, read_object, score_grid, write_object
 from stablelego_jax.generate.procedural import stairs, wall
@@ -85,7 +86,7 @@ def test_atomic_write_and_overwrite(tmp_path, monkeypatch):
     def boom(*a, **k):
         raise RuntimeError("disk full")
 
-    monkeypatch.setattr(dataset, "render_heatmap", boom)
+    monkeypatch.setattr(render, "render_heatmap", boom)
     with pytest.raises(RuntimeError):
         write_object(str(path), lay, [0.9] * 3, vis=True, overwrite=True)
     assert read_object(str(path)).brick_scores() == pytest.approx({"1": 0.1, "2": 0.2, "3": 0.3})

@@ -34,7 +34,6 @@ import numpy as np
 
 from ..files import current_umask
 from ..layout import Layout, LayoutError, cells_of, layout_voxels
-from ..render import render_heatmap
 from .reader import load_layout
 from .stablelego import layout_to_json_dict
 
@@ -216,7 +215,9 @@ def write_object(
         with open(os.path.join(tmp, META_FILE), "w", encoding="utf-8") as fh:
             json.dump(info, fh, indent=1)
             fh.write("\n")
-        if vis:
+        if vis:  # matplotlib is imported only here: scoring and reading never pay for it
+            from ..render import render_heatmap
+
             render_heatmap(layout, [per_brick[k] for k in layout.keys], os.path.join(tmp, "vis.png"),
                            title=title if title is not None else name)
 
