@@ -847,8 +847,10 @@ def _score_files(
     bar = Progress(len(todo), stream=stream, enabled=progress, unit="layouts")
     d = os.path.dirname(os.path.abspath(out))
     os.makedirs(d, exist_ok=True)
-    # the JAX pool's workers start now, while this process reads and plans
-    pool_jobs = int(jobs) if solver != "exact" and _device_count(devices) == 1 and len(todo) >= POOL_MIN else 1
+    # the JAX pool's workers start now, while this process reads and plans ("auto" may give
+    # HiGHS every layout: its workers start when it knows)
+    pool_jobs = int(jobs) if solver in ("jax", "admm") and _device_count(devices) == 1 and len(todo) >= POOL_MIN \
+        else 1
     with open(out, "a", encoding="utf-8") as fh, (Workers(pool_jobs) if pool_jobs > 1 else contextlib.nullcontext()) \
             as workers:
 

@@ -33,10 +33,10 @@ __all__ = ["x64", "x64_differentiable", "float64", "cache_dir", "use_persistent_
 
 #: XLA options for the library's programs on a CPU backend: XLA's LLVM IR
 #: fusion emitters instead of its newer MLIR ones. On this project's
-#: interior points they compile 20-35% faster (1.7-2.3 s against 2.4-2.9 s a
-#: shape), with 15-20% fewer kernels and the same solve time
-#: (``benchmarks/compile_shapes.py`` with and without ``--xla-defaults``,
-#: BENCHMARKS.md).
+#: interior points they compile 20-48% faster (1.6-2.0 s against 2.0-3.4 s
+#: a shape on a sample of the shard), with 16-17% fewer kernels and the same
+#: solve time (``benchmarks/compile_shapes.py`` with and without
+#: ``--xla-defaults``, BENCHMARKS.md, session 33).
 CPU_COMPILER_OPTIONS = {"xla_cpu_use_fusion_emitters": False}
 
 
