@@ -239,10 +239,18 @@ def batch_solver_fn(params: Params, opts, n_dev: int):
     (each device runs its own while-loop, so it stops as soon as its own
     layouts have converged). ADMM: the last argument is each problem's
     iteration cap, (batch,) int, so a capped first pass and the full pass
-    share one executable (``opts.max_iter`` is not used)."""
+    share one executable (``opts.max_iter`` is not used). The interior
+    point of one dense problem (on each device) runs without ``vmap``: the
+    same numbers from a smaller program, compiled in 25-45% less time on
+    this CPU at the same solve time; layered problems stay batched
+    (unbatched, their block solves ran 10-25% slower; BENCHMARKS.md,
+    session 33)."""
     if isinstance(opts, ipm.IPMOptions):
 
         def f(*arrays):
+            layers = Problem(*arrays).layers  # (batch, L) or None
+            if arrays[0].shape[0] == 1 and (layers is None or layers.shape[-1] == 1):
+                return tuple(x[None] for x in ipm.solve(Problem(*(a[0] for a in arrays)), params, opts))
             return tuple(jax.vmap(lambda *a: ipm.solve(Problem(*a), params, opts))(*arrays))
     else:
 
