@@ -434,7 +434,7 @@ def auto_split(units: Sequence["SolveUnit"], ready=None, n_dev: int = 1,
     (:func:`~stablelego_jax.solvers.exact.estimated_seconds`)."""
     groups: dict = {}
     for u in units:
-        groups.setdefault((u.key, u.m_pad, u.p_pad, u.c_pad), []).append(u)
+        groups.setdefault(u.shape, []).append(u)
     to_exact, to_jax = [], []
     for (key, m_pad, p_pad, c_pad), us in groups.items():
         sizes = {batch_rung(len(u.items), n_dev, u.bsz) for u in us}
@@ -463,9 +463,19 @@ class SolveUnit:
     items: list
     c_pad: int | None = None
 
+    @property
+    def shape(self) -> tuple:
+        """(key, m_pad, p_pad, c_pad): what the compiled solvers of the unit's bucket share."""
+        return self.key, self.m_pad, self.p_pad, self.c_pad
+
     def seconds(self) -> float:
         """Rough solve time (s) of the interior point (:func:`~stablelego_jax.solvers.problem.plan_seconds`)."""
         return len(self.items) * plan_seconds(self.key, self.m_pad)
+
+
+def _longest_first(units: Sequence[SolveUnit]) -> list:
+    """Indices of ``units``, longest estimated solve first (stable)."""
+    return sorted(range(len(units)), key=lambda k: -units[k].seconds())
 
 
 def piece_sizes(key: tuple, m_pad: int, count: int, batch: int, n_dev: int, cpu: bool | None = None) -> list:
@@ -651,12 +661,12 @@ def assign_units(units: Sequence[SolveUnit], jobs: int, compile_s: float = COMPI
     load = [0.0] * jobs
     shapes: list = [set() for _ in range(jobs)]
     out = [0] * len(units)
-    for u in sorted(range(len(units)), key=lambda k: -units[k].seconds()):
+    for u in _longest_first(units):
         un = units[u]
-        key = (un.key, un.m_pad, un.p_pad, un.c_pad)
+        key = un.shape
         new = compile_s
         if any(key in sh for sh in shapes) or (ready is not None and ready(
-                un.key, un.m_pad, un.p_pad, un.c_pad, {batch_rung(len(un.items), 1, un.bsz)}, un.items[0][2])):
+                *key, {batch_rung(len(un.items), 1, un.bsz)}, un.items[0][2])):
             new = LOAD_S
         cost = [load[w] + un.seconds() + (0.0 if key in shapes[w] else new) for w in range(jobs)]
         w = min(range(jobs), key=cost.__getitem__)
@@ -673,15 +683,9 @@ def worker_order(units: Sequence[SolveUnit], where: Sequence[int]) -> list:
     that shape's first taker), in the given order, then its share of
     shapes another worker compiles, read from the disk cache."""
     owner: dict = {}
-    for u in sorted(range(len(units)), key=lambda k: -units[k].seconds()):
-        un = units[u]
-        owner.setdefault((un.key, un.m_pad, un.p_pad, un.c_pad), where[u])
-
-    def late(u):
-        un = units[u]
-        return owner[(un.key, un.m_pad, un.p_pad, un.c_pad)] != where[u]
-
-    return sorted(range(len(units)), key=lambda u: (late(u), u))
+    for u in _longest_first(units):  # assign_units' order: a shape's first unit there is its first taker
+        owner.setdefault(units[u].shape, where[u])
+    return sorted(range(len(units)), key=lambda u: (owner[units[u].shape] != where[u], u))
 
 
 class Workers:
@@ -728,8 +732,8 @@ def _jax_pool(units, jobs, solver, params, opts, first_cap, fallback, st, ready=
     :func:`worker_order`, so each shape is compiled once, by one worker.
     Yields each unit's results as it finishes."""
     where = assign_units(units, jobs, ready=ready)
-    own = workers is None or len(workers.pools) < jobs
-    pools = Workers(jobs).pools if own else workers.pools[:jobs]
+    own = Workers(jobs) if workers is None or len(workers.pools) < jobs else None
+    pools = (own or workers).pools[:jobs]
     futs = []
     try:
         for u in worker_order(units, where):
@@ -742,9 +746,8 @@ def _jax_pool(units, jobs, solver, params, opts, first_cap, fallback, st, ready=
     finally:
         for fut in futs:
             fut.cancel()
-        if own:
-            for pool in pools:
-                pool.shutdown(wait=True, cancel_futures=True)
+        if own is not None:
+            own.close()
 
 
 def _exact_items(items, method, exact_method, exact_scale) -> list:
@@ -842,8 +845,8 @@ def _score_files(
     """
     solver = pick_solver(solver, method)
     t_run = time.perf_counter()
-    if solver != "exact":
-        _device_count(devices)  # refuse a bad count before reading anything
+    # refuse a bad device count before reading anything
+    n_dev = _device_count(devices) if solver != "exact" else None
     paths = find_layouts(inputs, id_column)
     if not paths:
         raise LayoutError(", ".join(map(str, inputs)), "no layouts to score")
@@ -857,8 +860,7 @@ def _score_files(
     os.makedirs(d, exist_ok=True)
     # the JAX pool's workers start now, while this process reads and plans ("auto" may give
     # HiGHS every layout: its workers start when it knows)
-    pool_jobs = int(jobs) if solver in ("jax", "admm") and _device_count(devices) == 1 and len(todo) >= POOL_MIN \
-        else 1
+    pool_jobs = int(jobs) if solver in ("jax", "admm") and n_dev == 1 and len(todo) >= POOL_MIN else 1
     with open(out, "a", encoding="utf-8") as fh, (Workers(pool_jobs) if pool_jobs > 1 else contextlib.nullcontext()) \
             as workers:
 

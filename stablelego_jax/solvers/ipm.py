@@ -192,7 +192,7 @@ def _system(prob: Problem, params: Params, opts: IPMOptions) -> dict:
 
     def hinv(f, b):
         Wt, hx, a, gam, _, _ = f
-        W1, _, W3 = Wt[:m], Wt[m:2 * m], Wt[2 * m:3 * m]
+        W1, W3 = Wt[:m], Wt[2 * m:3 * m]
         bx, bD, bt = b[:m], b[m:2 * m], b[2 * m:2 * m + n]
         bD2 = bD - W1 * bx / hx
         at = (bt + segsum(W3 * bD2 / a)) / gam
