@@ -640,9 +640,12 @@ def fit_plan(model: ForceModel, key: tuple, m_pad: int | None = None) -> tuple:
 
 
 #: Seconds one compile of the (unbatched) interior point takes for a large
-#: layout: 3.7-5.3 s for layered and slab shapes of 650-2870 bricks on this
-#: 2-core CPU (session 25, benchmarks/large_layouts.py).
-SINGLE_COMPILE_S = 4.0
+#: layout: 1.5-2.5 s for layered and slab shapes of 343-1240 bricks on this
+#: 2-core CPU (session 34, ``benchmarks/large_layouts.py --case cube7 cube8
+#: cube9 cube10 solid20 pyramid12 pyramid15 --solvers jax``, an empty cache;
+#: 3.7-5.3 s in session 25, before the flat interior-point vectors and the
+#: CPU compiler options of :mod:`stablelego_jax.runtime`).
+SINGLE_COMPILE_S = 2.0
 
 
 #: Seconds one compile of a batched interior-point solver takes on a CPU core,
