@@ -142,12 +142,12 @@ def _system(prob: Problem, params: Params, opts: IPMOptions) -> dict:
                               prob.supports, prob.col_slot)
 
     def G(z):
-        x, Dv, t = z[:m], z[m:2 * m], z[2 * m:2 * m + n]
-        return jnp.concatenate([x + Dv, Dv, t[owner] - Dv, x, z[2 * m:]])
+        x, Dv, t, rp, rm = zparts(z)
+        return jnp.concatenate([x + Dv, Dv, t[owner] - Dv, x, t, rp, rm])
 
     def Gt(v):
-        v1, v2, v3, v4, v5, v67 = jnp.split(v * act, [m, 2 * m, 3 * m, 4 * m, 4 * m + n])
-        return jnp.concatenate([v1 + v4, v1 + v2 - v3, segsum(v3) + v5, v67])
+        v1, v2, v3, v4, v5, v6, v7 = parts(v * act)
+        return jnp.concatenate([v1 + v4, v1 + v2 - v3, segsum(v3) + v5, v6, v7])
 
     def Et(nu):
         nu = nu.reshape(-1)
@@ -192,13 +192,13 @@ def _system(prob: Problem, params: Params, opts: IPMOptions) -> dict:
 
     def hinv(f, b):
         Wt, hx, a, gam, _, _ = f
-        W1, W3 = Wt[:m], Wt[2 * m:3 * m]
-        bx, bD, bt = b[:m], b[m:2 * m], b[2 * m:2 * m + n]
+        W1, _, W3, _, _, W6, W7 = parts(Wt)
+        bx, bD, bt, brp, brm = zparts(b)
         bD2 = bD - W1 * bx / hx
         at = (bt + segsum(W3 * bD2 / a)) / gam
         aD = act_n * (bD2 + W3 * at[owner]) / a
         ax = (bx - W1 * aD) / hx
-        return jnp.concatenate([ax, aD, at, b[2 * m + n:] / Wt[4 * m + n:]])
+        return jnp.concatenate([ax, aD, at, brp / W6, brm / W7])
 
     def newton(f, rhs1, rp_res):
         C, Gf = f[4], f[5]
