@@ -1,8 +1,11 @@
 """Per-brick scores (paper Eq. 10) from a force distribution.
 
 The one implementation of each formula every solver, the loss and repair
-use: :func:`largest_drag` (the largest drag on each brick's own bottom
-contacts), :func:`residual_bad` (out of equilibrium beyond the tolerance),
+use: :func:`equilibrium` and :func:`equilibrium_t` (the equilibrium
+operator ``A f``, each column's force times its wrench on its two bricks,
+and its transpose), :func:`largest_drag` and :func:`bottom_sum` (the
+largest and the sum of a value over each brick's own bottom contacts),
+:func:`residual_bad` (out of equilibrium beyond the tolerance),
 :func:`floating_bricks` (no chain of contacts to the ground) and
 :func:`verdict` (Eq. 10). Works on numpy arrays (no per-shape jit
 compiles) or JAX arrays and tracers (so it jits and vmaps); one
@@ -14,7 +17,7 @@ import numpy as np
 
 from .model import NORMAL, Params
 
-__all__ = ["residual", "largest_drag", "brick_drag", "residual_bad", "floating_bricks", "verdict", "brick_scores",
+__all__ = ["equilibrium", "equilibrium_t", "residual", "largest_drag", "bottom_sum", "brick_drag", "residual_bad", "floating_bricks", "verdict", "brick_scores",
            "weakest_brick", "TIE"]
 
 #: Scores (and drags / T) closer than this are a tie for the weakest brick.
@@ -31,20 +34,38 @@ def _xp(*arrays):
     return np
 
 
-def residual(model, f):
-    """Equilibrium residual ``A f + g`` per brick: (n_pad, 6) in N and N m."""
-    cb, coef = model.col_brick, model.col_coef
-    n_pad = model.gravity.shape[0]
+def equilibrium(coef, col_brick, f, n):
+    """The equilibrium operator ``A f``: the wrench of every column's force
+    on its two bricks, summed per brick.
+
+    coef: (m, 2, 6) wrench on each slot per unit force (any units: N and
+    N m, or the solvers' scaled rows); col_brick: (m, 2) brick of each slot,
+    ``n`` for none (the baseplate: dropped); f: (m,). Returns (n, 6) in
+    coef's units times f's. numpy in, numpy out; JAX arrays and tracers
+    give JAX arrays (jit- and vmap-friendly)."""
     xp = _xp(f, coef)
     if xp is np:
-        out = np.zeros((n_pad + 1, 6), np.result_type(f, coef))
-        np.add.at(out, cb[:, 0], coef[:, 0, :] * f[:, None])
-        np.add.at(out, cb[:, 1], coef[:, 1, :] * f[:, None])
-        return out[:n_pad] + model.gravity
-    out = xp.zeros((n_pad + 1, 6), f.dtype)
-    out = out.at[cb[:, 0]].add(coef[:, 0, :] * f[:, None])
-    out = out.at[cb[:, 1]].add(coef[:, 1, :] * f[:, None])
-    return out[:n_pad] + model.gravity
+        out = np.zeros((n + 1, 6), np.result_type(f, coef))
+        np.add.at(out, col_brick[:, 0], coef[:, 0, :] * f[:, None])
+        np.add.at(out, col_brick[:, 1], coef[:, 1, :] * f[:, None])
+        return out[:n]
+    out = xp.zeros((n + 1, 6), f.dtype)
+    out = out.at[col_brick[:, 0]].add(coef[:, 0, :] * f[:, None])
+    out = out.at[col_brick[:, 1]].add(coef[:, 1, :] * f[:, None])
+    return out[:n]
+
+
+def equilibrium_t(coef, col_brick, y):
+    """The transpose of :func:`equilibrium`: (n, 6) per-brick rows -> (m,)
+    per column, ``(A' y)_p = sum over p's two slots of coef . y[brick]``."""
+    xp = _xp(y, coef)
+    yp = xp.concatenate([y, xp.zeros((1, 6), y.dtype)])
+    return (coef[:, 0] * yp[col_brick[:, 0]]).sum(-1) + (coef[:, 1] * yp[col_brick[:, 1]]).sum(-1)
+
+
+def residual(model, f):
+    """Equilibrium residual ``A f + g`` per brick: (n_pad, 6) in N and N m."""
+    return equilibrium(model.col_coef, model.col_brick, f, model.gravity.shape[0]) + model.gravity
 
 
 def largest_drag(drag, group):
@@ -57,6 +78,14 @@ def largest_drag(drag, group):
     xp = _xp(drag, group)
     d = xp.concatenate([drag, xp.zeros((1,), drag.dtype)])
     return d[group].max(axis=1)
+
+
+def bottom_sum(v, group):
+    """The sum of a per-column value over each brick's bottom NORMAL
+    columns: v (m,), group (n, P) as in :func:`largest_drag`; returns (n,),
+    0 for a brick with no bottom contact."""
+    xp = _xp(v, group)
+    return xp.concatenate([v, xp.zeros((1,), v.dtype)])[group].sum(axis=1)
 
 
 def brick_drag(model, f):

@@ -1,5 +1,5 @@
-"""Eq. 10: the one largest-drag, equilibrium test and verdict (stablelego_jax.score),
-the same on numpy and JAX arrays."""
+"""Eq. 10: the one equilibrium operator, largest drag, equilibrium test and verdict
+(stablelego_jax.score), the same on numpy and JAX arrays."""
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -7,7 +7,8 @@ import pytest
 
 from stablelego_jax.generate.procedural import stairs
 from stablelego_jax.model import NORMAL, Params, compile_layout
-from stablelego_jax.score import brick_drag, brick_scores, largest_drag, residual, residual_bad, verdict
+from stablelego_jax.score import (bottom_sum, brick_drag, brick_scores, equilibrium, equilibrium_t, largest_drag,
+                                  residual, residual_bad, verdict)
 from stablelego_jax.solvers.exact import solve_exact
 
 
@@ -17,6 +18,36 @@ def test_largest_drag_over_each_bricks_bottom_contacts():
     np.testing.assert_array_equal(largest_drag(drag, group), [0.5, 0.3, 0.0])
     with jax.enable_x64(True):
         np.testing.assert_array_equal(np.asarray(largest_drag(jnp.asarray(drag), jnp.asarray(group))), [0.5, 0.3, 0.0])
+
+
+def test_bottom_sum_adds_each_bricks_bottom_contacts():
+    v = np.array([0.1, 0.5, 0.25, 0.3])
+    group = np.array([[0, 1, 4], [2, 3, 4], [4, 4, 4]])  # 4 = empty slot
+    np.testing.assert_allclose(bottom_sum(v, group), [0.6, 0.55, 0.0])
+    with jax.enable_x64(True):
+        np.testing.assert_allclose(np.asarray(bottom_sum(jnp.asarray(v), jnp.asarray(group))), [0.6, 0.55, 0.0])
+
+
+def test_equilibrium_operator_by_hand_and_its_transpose():
+    """Column 0 presses brick 0 up and brick 1 down; column 1 joins brick 1
+    and the baseplate (slot n = 2, dropped): A f by hand, <A f, y> = <f, A' y>,
+    and numpy and JAX give the same arrays."""
+    coef = np.zeros((2, 2, 6))
+    coef[0, 0, 2], coef[0, 1, 2], coef[0, 0, 3] = 1.0, -1.0, 0.5
+    coef[1, 0, 2], coef[1, 1, 2] = 2.0, 7.0
+    cb = np.array([[0, 1], [1, 2]])
+    f = np.array([3.0, -1.0])
+    want = np.zeros((2, 6))
+    want[0, 2], want[0, 3] = 3.0, 1.5
+    want[1, 2] = -3.0 - 2.0
+    np.testing.assert_allclose(equilibrium(coef, cb, f, 2), want)
+    y = np.random.default_rng(0).normal(size=(2, 6))
+    np.testing.assert_allclose((equilibrium(coef, cb, f, 2) * y).sum(), f @ equilibrium_t(coef, cb, y))
+    with jax.enable_x64(True):
+        np.testing.assert_array_equal(np.asarray(equilibrium(jnp.asarray(coef), jnp.asarray(cb), jnp.asarray(f), 2)),
+                                      equilibrium(coef, cb, f, 2))
+        np.testing.assert_array_equal(np.asarray(equilibrium_t(jnp.asarray(coef), jnp.asarray(cb), jnp.asarray(y))),
+                                      equilibrium_t(coef, cb, y))
 
 
 def test_verdict_is_eq10_with_the_drag_tolerance():

@@ -40,9 +40,11 @@ import jax.numpy as jnp
 
 from ..model import NORMAL, SIDE, Params
 from ..runtime import x64
+from ..score import bottom_sum
 from .blocks import block_cholesky, block_solve
 from .newton import reduced_matrix
 from .problem import Problem, Solution, make_solution, operators
+from .steps import boundary_step, centring
 
 __all__ = ["IPMOptions", "solve"]
 
@@ -124,9 +126,6 @@ def _system(prob: Problem, params: Params, opts: IPMOptions) -> dict:
         jnp.broadcast_to(jnp.arange(n, dtype=jnp.int32)[:, None], group.shape))[:m]
     xsel = jnp.concatenate([jnp.ones((m,), dtype), zeros(m + 13 * n)])  # the forces' entries of z
 
-    def segsum(v):  # (m,) per-contact -> (n,) per owning brick
-        return jnp.concatenate([v, jnp.zeros((1,), v.dtype)])[group].sum(axis=1)
-
     def parts(v):  # slack-space vector -> its 7 parts (flat)
         return jnp.split(v, [m, 2 * m, 3 * m, 4 * m, 4 * m + n, 4 * m + 7 * n])
 
@@ -147,7 +146,7 @@ def _system(prob: Problem, params: Params, opts: IPMOptions) -> dict:
 
     def Gt(v):
         v1, v2, v3, v4, v5, v6, v7 = parts(v * act)
-        return jnp.concatenate([v1 + v4, v1 + v2 - v3, segsum(v3) + v5, v6, v7])
+        return jnp.concatenate([v1 + v4, v1 + v2 - v3, bottom_sum(v3, group) + v5, v6, v7])
 
     def Et(nu):
         nu = nu.reshape(-1)
@@ -177,7 +176,7 @@ def _system(prob: Problem, params: Params, opts: IPMOptions) -> dict:
         # a = hD - W1^2 / hx and gam = ht - sum W3^2 / a, written as sums of
         # nonnegative terms: no cancellation when the barrier weights reach 1e12+
         a = W2 + W3 + d + W1 * (W4 + d + reg) / hx
-        gam = W5 + d + segsum(W3 * (W2 + d + W1 * (W4 + d + reg) / hx) / a)
+        gam = W5 + d + bottom_sum(W3 * (W2 + d + W1 * (W4 + d + reg) / hx) / a, group)
         e = (1.0 + W1 * W1 / (hx * a)) / hx
         q = W1 * W3 / (hx * a)
         dr = 1.0 / W6 + 1.0 / W7
@@ -195,7 +194,7 @@ def _system(prob: Problem, params: Params, opts: IPMOptions) -> dict:
         W1, _, W3, _, _, W6, W7 = parts(Wt)
         bx, bD, bt, brp, brm = zparts(b)
         bD2 = bD - W1 * bx / hx
-        at = (bt + segsum(W3 * bD2 / a)) / gam
+        at = (bt + bottom_sum(W3 * bD2 / a, group)) / gam
         aD = act_n * (bD2 + W3 * at[owner]) / a
         ax = (bx - W1 * aD) / hx
         return jnp.concatenate([ax, aD, at, brp / W6, brm / W7])
@@ -225,8 +224,7 @@ def _system(prob: Problem, params: Params, opts: IPMOptions) -> dict:
         return dz, dnu, ds, dlam
 
     def max_step(v, dv):
-        ratio = jnp.where(on & (dv < 0), -v / jnp.where(dv < 0, dv, -1.0), jnp.inf)
-        return jnp.minimum(1.0, ratio.min())
+        return jnp.minimum(1.0, boundary_step(v, dv, on))
 
     def measures(z, nu, lam):
         rd, rp_res = residuals(z, nu, lam)
@@ -258,7 +256,7 @@ def _system(prob: Problem, params: Params, opts: IPMOptions) -> dict:
         rp0 = jnp.maximum(r0, 0.0) + k0
         z0 = jnp.concatenate([x0, k0 * act_n, jnp.full((n,), 2 * k0, dtype), rp0, rp0 - r0])
         # duals that zero the dual residual of r+-, D and t at nu = 0
-        cnt = jnp.maximum(segsum(act_n), 1.0)
+        cnt = jnp.maximum(bottom_sum(act_n, group), 1.0)
         l3 = act_n * (params.alpha / 2) / cnt[owner]
         lam0 = jnp.concatenate([l3 / 2, params.beta + l3 / 2, l3, act_s * k0,
                                 jnp.full((n,), params.alpha / 2, dtype), w, w])
@@ -291,7 +289,7 @@ def solve(prob: Problem, params: Params = Params(), opts: IPMOptions = IPMOption
         dz, dnu, ds, dlam = direction(f, z, lam, rd, rp_res, rc)
         ap, ad = max_step(s, ds), max_step(lam, dlam)
         mu_aff = dot(s + ap * ds, (lam + ad * dlam) * act) / n_act
-        sigma = jnp.clip((mu_aff / mu) ** 3, 0.0, 1.0)
+        sigma = centring(mu_aff, mu)
         # corrector
         rc = (s * lam + ds * dlam - sigma * mu) * act
         dz, dnu, ds, dlam = direction(f, z, lam, rd, rp_res, rc)

@@ -14,6 +14,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..model import KNOB, NORMAL, SIDE, ForceModel, Params
+from ..score import equilibrium, equilibrium_t
 from ..soft import SoftProblem
 
 __all__ = [
@@ -810,7 +811,8 @@ def operators(prob: Problem, params: Params):
     A: (m,) forces in T -> (n, 6) scaled wrench per brick; A': its
     transpose; coef: (m, 2, 6) scaled wrench per unit force; g: (n, 6)
     scaled gravity; w: (n, 6) weights of the scaled L1 residual (0 on
-    padding bricks). The one implementation of ``A f`` for every solver.
+    padding bricks). ``A f`` is :func:`~stablelego_jax.score.equilibrium`
+    on the scaled wrenches.
     """
     s6, w6 = (a.astype(prob.col_coef.dtype) for a in row_scale(params))
     coef = prob.col_coef * s6 * params.T  # unit force in units of T
@@ -818,14 +820,10 @@ def operators(prob: Problem, params: Params):
     n = prob.gravity.shape[0]
 
     def A(x):
-        out = jnp.zeros((n + 1, 6), x.dtype)
-        out = out.at[cb[:, 0]].add(coef[:, 0] * x[:, None])
-        out = out.at[cb[:, 1]].add(coef[:, 1] * x[:, None])
-        return out[:n]
+        return equilibrium(coef, cb, x, n)
 
     def At(y):
-        yp = jnp.concatenate([y, jnp.zeros((1, 6), y.dtype)])
-        return (coef[:, 0] * yp[cb[:, 0]]).sum(-1) + (coef[:, 1] * yp[cb[:, 1]]).sum(-1)
+        return equilibrium_t(coef, cb, y)
 
     g = prob.gravity * s6
     w = jnp.where(prob.brick_mask[:, None], w6, 0.0) * jnp.ones_like(g)

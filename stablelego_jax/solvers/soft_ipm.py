@@ -36,9 +36,12 @@ import jax.numpy as jnp
 
 from ..model import KNOB, NORMAL, Params
 from ..runtime import x64
+from ..score import bottom_sum, equilibrium, equilibrium_t
 from ..soft import SoftProblem
 from .blocks import block_cholesky, block_solve
 from .newton import reduced_matrix
+from .problem import row_scale
+from .steps import boundary_step, centring
 
 __all__ = [
     "BarrierOptions",
@@ -108,9 +111,8 @@ class SoftContext(NamedTuple):
 def soft_context(weights, loads, prob: SoftProblem, params: Params) -> SoftContext:
     dtype = jnp.float64
     n = prob.mass.shape[0]
-    s = 1.0 / params.stud
-    row = jnp.asarray([1.0, 1.0, 1.0, s, s, s], dtype)
-    cost = jnp.asarray([1.0, 1.0, 1.0, params.stud, params.stud, params.stud], dtype) * jnp.ones((n, 6), dtype)
+    s6, w6 = (jnp.asarray(a, dtype) for a in row_scale(params))
+    cost = w6 * jnp.ones((n, 6), dtype)
     w_eff = jnp.asarray(weights, dtype)[prob.unit]
     om = jnp.where(prob.brick_mask, w_eff, 0.0)
     om_ext = jnp.concatenate([om, jnp.ones((1,), dtype)])
@@ -122,7 +124,7 @@ def soft_context(weights, loads, prob: SoftProblem, params: Params) -> SoftConte
     o0 = jnp.where(same, 1.0, w1)
     o1 = jnp.where(same, 1.0, w0)
     real = jnp.asarray(prob.col_mask)
-    coef = jnp.asarray(prob.col_coef, dtype) * row
+    coef = jnp.asarray(prob.col_coef, dtype) * s6 * params.T  # scaled rows (forces in T), as the verdict's
     coef_t = coef * jnp.stack([o0, o1], axis=1)[:, :, None]
     load = jnp.zeros((n,), dtype) if loads is None else jnp.asarray(loads, dtype)
     gz = -(jnp.asarray(prob.mass, dtype) + load) * params.g / params.T
@@ -143,24 +145,6 @@ def soft_context(weights, loads, prob: SoftProblem, params: Params) -> SoftConte
                 ws=ws, csym=ws_ext[b0] * osym, osym=osym)
 
 
-def _apply(coef, cb, x, n):
-    """sum over columns of coef[:, s] x -> (n, 6) (slot bricks ``n`` dropped)."""
-    out = jnp.zeros((n + 1, 6), x.dtype)
-    out = out.at[cb[:, 0]].add(coef[:, 0] * x[:, None])
-    out = out.at[cb[:, 1]].add(coef[:, 1] * x[:, None])
-    return out[:n]
-
-
-def _apply_t(coef, cb, y):
-    """transpose of :func:`_apply`: (n, 6) -> (m,)."""
-    yp = jnp.concatenate([y, jnp.zeros((1, 6), y.dtype)])
-    return (coef[:, 0] * yp[cb[:, 0]]).sum(-1) + (coef[:, 1] * yp[cb[:, 1]]).sum(-1)
-
-
-def _owner_sum(ctx: SoftContext, vals, n):
-    return jax.ops.segment_sum(vals, ctx.owner, num_segments=n + 1)[:n]
-
-
 def _ext(v):
     return jnp.concatenate([v, jnp.zeros((1,), v.dtype)])
 
@@ -171,7 +155,7 @@ def column_force(x, ctx: SoftContext):
 
 
 def brick_residual(ctx: SoftContext, phi):
-    return _apply(ctx.coef_t, ctx.cb, phi, ctx.g.shape[0]) + ctx.g
+    return equilibrium(ctx.coef_t, ctx.cb, phi, ctx.g.shape[0]) + ctx.g
 
 
 # --------------------------------------------------------------------------
@@ -240,16 +224,15 @@ def _system(x, ctx: SoftContext, dpsi, ddpsi, zeta, h, opts: BarrierOptions):
     """
     p = opts.params
     S, D, t = x
-    n = ctx.g.shape[0]
     z0, z1, z2, z3 = (_msk(v, on) for v, on in zip(zeta, _masks(ctx)[:4]))
     h0, h1, h2, h3 = (_msk(v, on) for v, on in zip(h, _masks(ctx)[:4]))
     o = ctx.o0
-    atp = _apply_t(ctx.coef, ctx.cb, dpsi)
+    atp = equilibrium_t(ctx.coef, ctx.cb, dpsi)
     kc = jnp.where(ctx.knob, opts.knob_cost, 0.0)
     ec = _compliance(ctx, opts)
     rS = jnp.where(ctx.real, atp + kc - z1 + ec * S, S)
     rD = jnp.where(ctx.pair, -atp + jnp.where(ctx.normal, p.beta, 0.0) + kc - z0 + o * z2 + ec * D, D)
-    rt = p.alpha - z3 - _owner_sum(ctx, o * z2, n)
+    rt = p.alpha - z3 - bottom_sum(o * z2, ctx.group)
     pieces = _Pieces(
         hS=jnp.where(ctx.real, h1 + ec, 1.0),
         hD=jnp.where(ctx.pair, h0 + o * o * h2 + ec, 1.0),
@@ -335,8 +318,7 @@ def _sides(ctx: SoftContext, transpose: bool):
 
 
 def _ktt(ctx: SoftContext, pc: _Pieces):
-    n = ctx.g.shape[0]
-    return pc.h3 + _owner_sum(ctx, jnp.where(ctx.normal, pc.h2o * pc.h0 / pc.hD, 0.0), n)
+    return pc.h3 + bottom_sum(jnp.where(ctx.normal, pc.h2o * pc.h0 / pc.hD, 0.0), ctx.group)
 
 
 def _theta(ctx: SoftContext, pc: _Pieces):
@@ -370,19 +352,19 @@ def _solve(ctx: SoftContext, plan: _Plan, lin: _Lin, r, transpose: bool = False)
     n = rt.shape[0]
     left, right = _sides(ctx, transpose)
     u = jnp.where(ctx.real, rS / pc.hS, 0.0) - jnp.where(ctx.pair, rD / pc.hD, 0.0)
-    ry = _apply(left, ctx.cb, u, n)
-    rtt = rt - _owner_sum(ctx, jnp.where(ctx.pair, g * rD / pc.hD, 0.0), n)
+    ry = equilibrium(left, ctx.cb, u, n)
+    rtt = rt - bottom_sum(jnp.where(ctx.pair, g * rD / pc.hD, 0.0), ctx.group)
     fq = jnp.where(ctx.normal, f / pc.hD, 0.0)
     gq = jnp.where(ctx.normal, g / pc.hD, 0.0)
-    rhs = ry + _apply(left * fq[:, None, None], ctx.cb, _ext(rtt / lin.ktt)[ctx.owner], n)
+    rhs = ry + equilibrium(left * fq[:, None, None], ctx.cb, _ext(rtt / lin.ktt)[ctx.owner], n)
     N = plan.L * plan.B
     ws = ctx.ws[:, None]
     Y = jnp.zeros((N + 1, 6), rhs.dtype).at[plan.pos].add(rhs if transpose else ws * rhs, mode="drop")[:N]
     Y = block_solve(lin.C, lin.G, Y.reshape(plan.L, 6 * plan.B)).reshape(N, 6)
     Y = Y[jnp.minimum(plan.pos, N - 1)]
     y = jnp.where((plan.pos < N)[:, None], ws * Y if transpose else Y, rhs * pc.ddpsi)
-    dt = (rtt - _owner_sum(ctx, gq * _apply_t(right, ctx.cb, y), n)) / lin.ktt
-    aty = _apply_t(right, ctx.cb, y)
+    dt = (rtt - bottom_sum(gq * equilibrium_t(right, ctx.cb, y), ctx.group)) / lin.ktt
+    aty = equilibrium_t(right, ctx.cb, y)
     dte = _ext(dt)[ctx.owner]
     dS = jnp.where(ctx.real, (rS - aty) / pc.hS, rS)
     qD = rD + aty
@@ -393,12 +375,6 @@ def _solve(ctx: SoftContext, plan: _Plan, lin: _Lin, r, transpose: bool = False)
 
 # --------------------------------------------------------------------------
 # the interior-point method
-
-
-def _ratio(v, dv, on):
-    """Largest step keeping v + step dv > 0 over ``on`` (inf if none)."""
-    lim = jnp.where(dv < 0, -v / jnp.where(dv < 0, dv, -1.0), jnp.inf)
-    return jnp.where(on, lim, jnp.inf).min()
 
 
 def _axpy(t, d, x):
@@ -462,7 +438,7 @@ def _ipm(ctx: SoftContext, opts: BarrierOptions):
         # goes to the primal equation r - rho = s_b (absolute, tiny)
         dzb = (dpsi - y) + cost - z[5]
         dza = 2.0 * cost - z[4] - z[5] - dzb
-        drho = -_apply(ctx.coef_t, ctx.cb, column_force((dS, dD, dt), ctx), n)
+        drho = -equilibrium(ctx.coef_t, ctx.cb, column_force((dS, dD, dt), ctx), n)
         comp = lambda k, dzk: (target[k] - s[k] * z[k] - s[k] * dzk) / z[k]  # noqa: E731
         zcomp = lambda k, dsk: (target[k] - s[k] * z[k] - z[k] * dsk) / s[k]  # noqa: E731
         # each pair's step goes through its active side(s) (h = z/s > 1): a
@@ -485,7 +461,7 @@ def _ipm(ctx: SoftContext, opts: BarrierOptions):
         dz = tuple(_msk(v, on) for v, on in zip(dz, ons[:4])) + (dza, dzb)
         step = jnp.asarray(1.0, dtype)
         for sv, dsv, zv, dzv, o in zip(s, ds, z, dz, ons):
-            step = jnp.minimum(step, jnp.minimum(_ratio(sv, dsv, o), _ratio(zv, dzv, o)))
+            step = jnp.minimum(step, jnp.minimum(boundary_step(sv, dsv, o), boundary_step(zv, dzv, o)))
         return dx, dr, ds, dz, step
 
     def primal(state):
@@ -525,7 +501,7 @@ def _ipm(ctx: SoftContext, opts: BarrierOptions):
             _, _, ds_a, dz_a, st_a = out
             st_a = jnp.minimum(st_a, 1.0)
             mu_a = mean_gap(_axpy(st_a, ds_a, s), _axpy(st_a, dz_a, z))
-            sigma = jnp.clip((mu_a / mu) ** 3, 0.0, 1.0)
+            sigma = centring(mu_a, mu)
             tau = jnp.maximum(opts.mu, sigma * mu)
             final = tau <= opts.mu
             nxt = tuple(tau * w - jnp.where(final, 0.0, _msk(dsv * dzv, o))
