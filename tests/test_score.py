@@ -12,20 +12,13 @@ from stablelego_jax.score import (bottom_sum, brick_drag, brick_scores, equilibr
 from stablelego_jax.solvers.exact import solve_exact
 
 
-def test_largest_drag_over_each_bricks_bottom_contacts():
-    drag = np.array([0.1, 0.5, 0.0, 0.3])
-    group = np.array([[0, 1, 4], [2, 3, 4], [4, 4, 4]])  # 4 = empty slot
-    np.testing.assert_array_equal(largest_drag(drag, group), [0.5, 0.3, 0.0])
-    with jax.enable_x64(True):
-        np.testing.assert_array_equal(np.asarray(largest_drag(jnp.asarray(drag), jnp.asarray(group))), [0.5, 0.3, 0.0])
-
-
-def test_bottom_sum_adds_each_bricks_bottom_contacts():
+def test_largest_drag_and_bottom_sum_over_each_bricks_bottom_contacts():
     v = np.array([0.1, 0.5, 0.25, 0.3])
     group = np.array([[0, 1, 4], [2, 3, 4], [4, 4, 4]])  # 4 = empty slot
-    np.testing.assert_allclose(bottom_sum(v, group), [0.6, 0.55, 0.0])
-    with jax.enable_x64(True):
-        np.testing.assert_allclose(np.asarray(bottom_sum(jnp.asarray(v), jnp.asarray(group))), [0.6, 0.55, 0.0])
+    for fn, want in ((largest_drag, [0.5, 0.3, 0.0]), (bottom_sum, [0.6, 0.55, 0.0])):
+        np.testing.assert_allclose(fn(v, group), want)
+        with jax.enable_x64(True):
+            np.testing.assert_allclose(np.asarray(fn(jnp.asarray(v), jnp.asarray(group))), want)
 
 
 def test_equilibrium_operator_by_hand_and_its_transpose():
