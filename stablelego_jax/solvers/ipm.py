@@ -8,7 +8,8 @@ T, torque rows in T stud):
          x_p + D_p >= 0, D_p >= 0, t_b - D_p >= 0  (NORMAL contact p of brick b)
          x_p >= 0 (SIDE), t_b >= 0, r+, r- >= 0
 
-solved by a primal-dual Mehrotra predictor-corrector method. Every Newton
+solved by a primal-dual Mehrotra predictor-corrector method (its step run by
+the loop both interior points share, :func:`~stablelego_jax.solvers.interior.iterate`). Every Newton
 system is reduced, in closed form, to the equality rows: the per-contact
 variables (x, D) and each brick's max-drag variable t are eliminated by a
 diagonal-plus-rank-one (per brick) inverse, which leaves
@@ -44,7 +45,7 @@ from ..score import bottom_sum
 from .blocks import block_cholesky, block_solve
 from .newton import reduced_matrix
 from .problem import Problem, Solution, make_solution, operators
-from .steps import boundary_step, centring
+from .interior import boundary_step, centring, iterate
 
 __all__ = ["IPMOptions", "solve"]
 
@@ -278,7 +279,7 @@ def solve(prob: Problem, params: Params = Params(), opts: IPMOptions = IPMOption
     measures, G, factor, direction, max_step = K["measures"], K["G"], K["factor"], K["direction"], K["max_step"]
     z0, nu0, lam0 = K["start"]()
 
-    def body(c):
+    def step(c):
         # the residuals at the iterate come from the previous iteration's measures
         z, nu, lam, rd, rp_res = c["z"], c["nu"], c["lam"], c["rd"], c["rp"]
         s = G(z)
@@ -299,19 +300,16 @@ def solve(prob: Problem, params: Params = Params(), opts: IPMOptions = IPMOption
         lam = lam + ad * dlam
         nu = nu + ad * dnu
         (ok, fine), pres, dres, obj, dual, rd, rp_res = measures(z, nu, lam)
-        new = dict(z=z, nu=nu, lam=lam, rd=rd, rp=rp_res, it=c["it"] + 1, done=fine, ok=ok, pres=pres, dres=dres,
-                   obj=obj, dual=dual)
+        new = dict(z=z, nu=nu, lam=lam, rd=rd, rp=rp_res, ok=ok, pres=pres, dres=dres, obj=obj, dual=dual)
         # numerical breakdown (factor lost definiteness near the end), or a polishing step that
         # lost convergence: keep the last iterate and stop
         bad = ~(jnp.isfinite(obj) & jnp.isfinite(dual) & jnp.isfinite(pres) & jnp.isfinite(dres)) | (c["ok"] & ~ok)
-        old = dict(c, it=c["it"] + 1, done=True)
-        return jax.tree_util.tree_map(lambda u, v: jnp.where(bad, u, v), old, new)
+        return new, fine, bad
 
     big = jnp.asarray(jnp.inf, K["dtype"])
     rd0, rp0 = K["residuals"](z0, nu0, lam0)
-    c0 = dict(z=z0, nu=nu0, lam=lam0, rd=rd0, rp=rp0, it=jnp.asarray(0), done=jnp.asarray(False),
-              ok=jnp.asarray(False), pres=big, dres=big, obj=big, dual=-big)
-    c = jax.lax.while_loop(lambda c: (~c["done"]) & (c["it"] < opts.max_iter), body, c0)
+    c0 = dict(z=z0, nu=nu0, lam=lam0, rd=rd0, rp=rp0, ok=jnp.asarray(False), pres=big, dres=big, obj=big, dual=-big)
+    c, it = iterate(step, c0, opts.max_iter)
     gap = (c["obj"] - c["dual"]) / jnp.maximum(jnp.abs(c["obj"]), 1e-12)
     cost = dot(K["cvec"], c["z"])  # the Eq. 9 value, without the least-norm term
-    return make_solution(prob, params, c["z"][:m], c["it"], c["ok"], c["pres"], c["dres"], cost, c["dual"], gap)
+    return make_solution(prob, params, c["z"][:m], it, c["ok"], c["pres"], c["dres"], cost, c["dual"], gap)

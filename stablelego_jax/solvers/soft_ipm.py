@@ -5,7 +5,8 @@ barrier parameter ``mu``, for a :class:`~stablelego_jax.soft.SoftProblem`
 with existence weights and extra loads (see :mod:`stablelego_jax.loss` for
 the problem, its units and what its gradient means). It is solved by an
 infeasible primal-dual interior-point method (Mehrotra predictor-corrector;
-at most ``iters`` iterations of a ``while_loop`` that stops once the
+at most ``iters`` iterations of the loop both interior points share,
+:func:`~stablelego_jax.solvers.interior.iterate`, stopping once the
 iterate is centred at ``mu``) in which each Newton system is reduced, per
 column and in closed form, to the changes of the residual rows' prices
 (the bricks' drag maxima eliminated too). The matrix that remains, scaled
@@ -41,7 +42,7 @@ from ..soft import SoftProblem
 from .blocks import block_cholesky, block_solve
 from .newton import reduced_matrix
 from .problem import row_scale
-from .steps import boundary_step, centring
+from .interior import boundary_step, centring, iterate
 
 __all__ = [
     "BarrierOptions",
@@ -473,8 +474,7 @@ def _ipm(ctx: SoftContext, opts: BarrierOptions):
         return jnp.max(jnp.stack([jnp.abs(_msk(sv * zv / (w * tau) - 1.0, o)).max()
                                   for sv, zv, o, w in zip(s, z, ons, wts)]))
 
-    def body(carry):
-        state, done, it = carry
+    def step(state):
         new = step_once(state)
         # stop once centred on the final barrier parameter: further centring
         # steps only stir rounding errors around
@@ -484,8 +484,7 @@ def _ipm(ctx: SoftContext, opts: BarrierOptions):
         # guard: near the end a step that loses primal feasibility (rounding
         # in a near-singular system) is refused and the iterate kept
         bad = (primal(new) > jnp.maximum(1e-6, 10.0 * primal(state))) & (mean_gap(*state[2:]) < 1e-3)
-        out = jax.tree_util.tree_map(lambda a, b: jnp.where(done | bad, a, b), state, new)
-        return out, done | ok | bad, it + 1
+        return new, ok, bad
 
     def step_once(state):
         x, r, s, z = state
@@ -521,8 +520,7 @@ def _ipm(ctx: SoftContext, opts: BarrierOptions):
             step = jnp.where(grows(step), 0.25 * step, step)
         return _axpy(step, dx, x), r + step * dr, _axpy(step, ds, s), _axpy(step, dz, z)
 
-    (x, r, s, z), _, _ = jax.lax.while_loop(lambda c: (~c[1]) & (c[2] < opts.iters), body,
-                                            (_start(ctx, wts), jnp.asarray(False), jnp.asarray(0)))
+    (x, r, s, z), _ = iterate(step, _start(ctx, wts), opts.iters)
     # optimality residuals with the actual duals: stationarity (z in place of
     # the barrier multipliers), primal feasibility, centrality; and the
     # residual rows' price and curvature for the backward pass
