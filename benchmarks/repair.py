@@ -37,7 +37,10 @@ brick and everything after it until stable), and records success (the
 exact solver says the result stands), bricks added, solver calls (exact
 HiGHS solves; the gradient method also counts each differentiable solve +
 gradient as one call), wall time (including JIT compilation of new
-shapes) and the fraction of the original bricks kept.
+shapes) and the fraction of the original bricks kept; for the gradient
+method also the padded shape of each differentiable solve, and the table
+counts the distinct shapes and ladder rungs (issue 18: at most one compile
+per rung touched).
 
 Rows are appended to ``--out`` (JSON lines) as they finish; rerunning skips
 layouts already there. ``--table`` prints the summary table from the file.
@@ -64,6 +67,31 @@ from stablelego_jax.analysis import analyze_layout  # noqa: E402
 from rows import append_row, read_rows  # noqa: E402
 from stablelego_jax.design.repair import RepairOptions, greedy_repair, repair, rollback_repair  # noqa: E402
 from stablelego_jax.solvers.compiled import STATS  # noqa: E402
+import stablelego_jax.design.repair as _repair_module  # noqa: E402
+
+#: The padded shape of every soft problem the gradient method solves in this
+#: process (recorded around ``repair``'s ``plan_soft``): (bricks, columns,
+#: contact slots, layers, slots per layer, column chunks).
+SOFT_SHAPES: list = []
+_plan_soft = _repair_module.plan_soft
+
+
+def _recorded_plan_soft(prob, calls=1):
+    q = _plan_soft(prob, calls)
+    L, B = (0, 0) if q.layers is None else q.layers.shape
+    SOFT_SHAPES.append((q.mass.shape[0], q.col_kind.shape[0], q.group.shape[1], L, B,
+                        0 if q.chunk is None else q.chunk.shape[0]))
+    return q
+
+
+_repair_module.plan_soft = _recorded_plan_soft
+
+
+def rung_of(shape) -> list:
+    """The ladder rung a padded soft shape belongs to: its bricks (dense) or
+    its layers and slots per layer (layered)."""
+    n, _, _, L, B, _ = shape
+    return ["layered", L, B] if L else ["dense", n]
 
 FAMILIES = ("stairs", "tower", "lever", "loaded", "voxels")
 METHODS = {"gradient": repair, "greedy": greedy_repair, "rollback": rollback_repair}
@@ -165,7 +193,7 @@ def run(name, lay, opts: RepairOptions, methods=tuple(METHODS), row=None) -> dic
     row = dict(row or {"name": name, "family": name.split("/")[0], "n_bricks": lay.n})
     for m in methods:
         fn = METHODS[m]
-        c0, s0, e0 = STATS.compiles, STATS.compile_s, STATS.evicted
+        c0, s0, e0, k0 = STATS.compiles, STATS.compile_s, STATS.evicted, len(SOFT_SHAPES)
         t = time.perf_counter()
         r = fn(lay, opts)
         row[m] = {
@@ -173,6 +201,7 @@ def run(name, lay, opts: RepairOptions, methods=tuple(METHODS), row=None) -> dic
             "stable": bool(r.stable), "added": r.added, "exact_calls": r.exact_calls, "soft_calls": r.soft_calls,
             "solver_calls": r.solver_calls, "time_s": round(time.perf_counter() - t, 3), "kept": round(r.kept, 4),
             "changes": [c.describe() for c in r.changes],
+            "soft_shapes": [list(k) for k in SOFT_SHAPES[k0:]],
         }
     return row
 
@@ -209,6 +238,12 @@ def table(rows) -> str:
             lines.append(f"- {m}: {comp} executables compiled ({cs:.1f} s of {ts:.1f} s wall, "
                          f"{sum(r[m]['evicted'] for r in rows)} evicted); wall without compiles "
                          f"{(ts - cs) / n:.2f} s per layout")
+        if all("soft_shapes" in r["gradient"] for r in rows):
+            shapes = {tuple(k) for r in rows for k in r["gradient"]["soft_shapes"]}
+            rungs = {tuple(rung_of(k)) for k in shapes}
+            lines.append(f"- gradient: {sum(len(r['gradient']['soft_shapes']) for r in rows)} differentiable solves in "
+                         f"{len(shapes)} padded shapes over {len(rungs)} ladder rungs (dense: bricks; layered: "
+                         f"layers x slots); {sum(r['gradient']['compiles'] for r in rows)} compiles")
         lines.append("")
     both = [r for r in rows if r["gradient"]["stable"] and r["greedy"]["stable"]]
     g_only = [r["name"] for r in rows if r["gradient"]["stable"] and not r["greedy"]["stable"]]

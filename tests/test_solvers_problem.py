@@ -372,3 +372,30 @@ def test_plan_soft_fits_the_padding_when_the_solves_pay_for_a_compile():
         losses.append(float(stability_loss(w, loads, q)))
     assert losses[0] > 1.0  # the long brick is pulled off: far above the barrier's floor
     np.testing.assert_allclose(losses[1], losses[0], rtol=1e-7)
+
+
+@pytest.mark.usefixtures("x64")
+def test_small_soft_problems_of_one_brick_rung_share_one_shape():
+    """Soft problems of one brick rung but different column and contact-slot
+    rungs (a one-layer slab, a stair with a block hung on its tip) get one
+    padded shape (soft_bucket) where the ladder gives each its own; many
+    solves keep the ladder's tighter shape; the loss is the same either way."""
+    from stablelego_jax.loss import stability_loss
+    from stablelego_jax.solvers.problem import SOFT_SLOTS, plan_soft, soft_bucket
+
+    probs = [compile_soft(cuboid(3, 3, 1)).problem, compile_soft(stairs(10)).problem]
+    dims = [(p.mass.shape[0], p.col_kind.shape[0], p.group.shape[1]) for p in probs]
+    assert len({bucket_shape(*d) for d in dims}) == 2 and len({soft_bucket(*d) for d in dims}) == 1
+    shapes = {(q.mass.shape[0], q.col_kind.shape[0], q.group.shape[1]) for q in map(plan_soft, probs)}
+    assert shapes == {soft_bucket(*dims[0])} and soft_bucket(*dims[0])[2] == SOFT_SLOTS
+    # a caller that solves one problem many times does not pay for the shared shape
+    many = plan_soft(probs[1], calls=1000)
+    assert many.col_kind.shape[0] <= bucket_shape(*dims[1])[1] < soft_bucket(*dims[1])[1]
+    p, n = probs[1], dims[1][0]
+    losses = []
+    for q in (plan_soft(p), pad_soft(p)):
+        w, loads = np.zeros(q.mass.shape[0]), np.zeros(q.mass.shape[0])
+        w[:n], loads[n - 1] = 1.0, 0.3
+        losses.append(float(stability_loss(w, loads, q)))
+    assert losses[0] > 1e-3  # the hung block tips the stair: far above the barrier's floor
+    np.testing.assert_allclose(losses[0], losses[1], rtol=1e-7)

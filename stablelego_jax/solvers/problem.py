@@ -38,6 +38,9 @@ __all__ = [
     "soft_layer_plan",
     "soft_plan",
     "plan_soft",
+    "soft_bucket",
+    "SOFT_COLUMNS_PER_BRICK",
+    "SOFT_SLOTS",
     "pair_chunks",
     "CHUNK",
     "layer_levels",
@@ -318,9 +321,28 @@ def soft_plan(prob: SoftProblem) -> tuple:
     return ("dense",)
 
 
+def soft_bucket(n: int, m: int, p: int) -> tuple[int, int, int]:
+    """The padded (bricks, columns, contact slots per brick) that every
+    small dense soft problem of ``n`` bricks' rung shares: the brick rung,
+    and at least :data:`SOFT_COLUMNS_PER_BRICK` columns per padded brick
+    and :data:`SOFT_SLOTS` contact slots (the ladder's rung of ``m`` or
+    ``p`` where that is larger). On the ladder alone a brick rung splits
+    into a shape for every (columns, slots) rung pair: the first solves of
+    ``repair``'s 100-layout benchmark fell into 46 shapes over 10 brick
+    rungs, each a compile of 3.3-4.6 s, while the padding costs a solve
+    2-70 ms (BENCHMARKS.md, session 35)."""
+    nb = rung(n, MIN_BRICKS)
+    return (nb, max(rung(m, MIN_COLUMNS), rung(SOFT_COLUMNS_PER_BRICK * nb, MIN_COLUMNS)),
+            max(rung(p, MIN_SLOTS), SOFT_SLOTS))
+
+
 def plan_soft(prob: SoftProblem, calls: int = 1) -> SoftProblem:
     """The problem padded to the ladder (:func:`pad_soft`), layered
-    (:func:`layer_soft`) when :func:`soft_plan` says that is cheaper.
+    (:func:`layer_soft`) when :func:`soft_plan` says that is cheaper; a
+    dense one padded to its brick rung's one shape (:func:`soft_bucket`)
+    where the extra columns cost the caller's ``calls`` solves at most
+    :data:`SOFT_SHARE` of a compile (small problems solved a few times:
+    ``repair``'s ranking).
 
     ``calls``: how many solves (loss + gradient) the caller makes of this
     problem, e.g. the steps of an optimisation. The padding is fitted to
@@ -347,6 +369,11 @@ def plan_soft(prob: SoftProblem, calls: int = 1) -> SoftProblem:
         ladder, fit = ("dense", shape[0]), ("dense", fshape[0])
     saving = calls * (plan_seconds(ladder, shape[1], SOFT_SOLVES) - plan_seconds(fit, fshape[1], SOFT_SOLVES))
     fitted = saving > SOFT_COMPILE_S
+    if not fitted and key[0] == "dense":
+        coarse = soft_bucket(n, m, P)
+        extra = calls * (plan_seconds(ladder, coarse[1], SOFT_SOLVES) - plan_seconds(ladder, shape[1], SOFT_SOLVES))
+        if extra <= SOFT_SHARE * SOFT_COMPILE_S:
+            shape = coarse
     if fit[0] == "layered":
         prob = layer_soft(prob, *(fit if fitted else ladder)[1:])
     # chunks: the ladder's rungs are multiples of 8, so 8 never pads more
@@ -360,6 +387,14 @@ def plan_soft(prob: SoftProblem, calls: int = 1) -> SoftProblem:
 #: (6.7-9.5 s, session 30).
 SOFT_SOLVES = 18
 SOFT_COMPILE_S = 7.0
+#: The least columns per padded brick and contact slots per brick of a small
+#: dense soft problem (:func:`soft_bucket`): the most that the first solves
+#: of ``repair``'s 100-layout benchmark needed (48.0 and 426).
+SOFT_COLUMNS_PER_BRICK = 48
+SOFT_SLOTS = 480
+#: The share of one compile that :func:`plan_soft` lets the shared shape of
+#: :func:`soft_bucket` cost the caller's solves.
+SOFT_SHARE = 0.1
 
 
 # ---------------------------------------------------------------- layering
