@@ -345,12 +345,13 @@ def test_merge_plans_cuts_the_dense_chain_at_least_cost():
 
 
 def test_plan_soft_fits_the_padding_when_the_solves_pay_for_a_compile():
-    """One solve: the ladder's padding (shared with similar problems); a
-    caller that solves the problem many times gets a padding fitted to it
-    (its own layer count, fewer bricks and columns), with the same loss."""
+    """One solve: the shape its rung shares (soft_bucket, on the ladder's
+    layers and slots); a caller that solves the problem many times gets a
+    padding fitted to it (its own layer count, fewer bricks and columns);
+    the same loss in the fitted, shared and ladder paddings."""
     from stablelego_jax.layout import brick_layout
     from stablelego_jax.loss import stability_loss
-    from stablelego_jax.solvers.problem import plan_soft, soft_layer_plan
+    from stablelego_jax.solvers.problem import layer_soft, plan_soft, soft_bucket, soft_layer_plan
 
     # a box of 6 layers of 49 unit bricks, a 1 x 8 brick on top sticking 6 studs out, 0.5 kg hung on it
     box = cuboid(7, 7, 6)
@@ -360,34 +361,41 @@ def test_plan_soft_fits_the_padding_when_the_solves_pay_for_a_compile():
     n, m = p.mass.shape[0], p.col_kind.shape[0]
     ladder, fitted = plan_soft(p), plan_soft(p, calls=10 ** 6)
     assert (L, B) == (7, 49) and ladder.layers.shape == layer_bucket(L, B) == (8, 56)
-    assert (ladder.mass.shape[0], ladder.col_kind.shape[0]) == bucket_shape(n, m, p.group.shape[1])[:2]
+    shared = soft_bucket(n, m, p.group.shape[1], (8, 56), len(layer_soft(p).chunk))
+    assert (ladder.mass.shape[0], ladder.col_kind.shape[0], ladder.group.shape[1], len(ladder.chunk)) == shared
     assert fitted.layers.shape == (7, 56)
     assert fitted.mass.shape[0] == -(-n // 8) * 8 < ladder.mass.shape[0]
     assert fitted.col_kind.shape[0] == -(-m // 64) * 64 < ladder.col_kind.shape[0]
     assert plan_soft(p, calls=2).layers.shape == (8, 56)  # a few solves do not pay for a compile
     losses = []
-    for q in (ladder, fitted):
+    for q in (ladder, fitted, pad_soft(layer_soft(p))):
         w, loads = np.zeros(q.mass.shape[0]), np.zeros(q.mass.shape[0])
         w[:n], loads[n - 1] = 1.0, 0.5
         losses.append(float(stability_loss(w, loads, q)))
     assert losses[0] > 1.0  # the long brick is pulled off: far above the barrier's floor
-    np.testing.assert_allclose(losses[1], losses[0], rtol=1e-7)
+    np.testing.assert_allclose(losses[1:], losses[0], rtol=1e-7)
 
 
 @pytest.mark.usefixtures("x64")
 def test_small_soft_problems_of_one_brick_rung_share_one_shape():
     """Soft problems of one brick rung but different column and contact-slot
-    rungs (a one-layer slab, a stair with a block hung on its tip) get one
-    padded shape (soft_bucket) where the ladder gives each its own; many
-    solves keep the ladder's tighter shape; the loss is the same either way."""
+    rungs (a one-layer slab, a stair with a block hung on its tip), and two
+    layered towers of one (layers, slots) rung, get one padded shape
+    (soft_bucket) where the ladder gives each its own; many solves keep the
+    ladder's tighter shape; the loss is the same either way."""
     from stablelego_jax.loss import stability_loss
-    from stablelego_jax.solvers.problem import SOFT_SLOTS, plan_soft, soft_bucket
+    from stablelego_jax.solvers.problem import SOFT_SLOTS, layer_soft, plan_soft, soft_bucket
 
     probs = [compile_soft(cuboid(3, 3, 1)).problem, compile_soft(stairs(10)).problem]
     dims = [(p.mass.shape[0], p.col_kind.shape[0], p.group.shape[1]) for p in probs]
     assert len({bucket_shape(*d) for d in dims}) == 2 and len({soft_bucket(*d) for d in dims}) == 1
     shapes = {(q.mass.shape[0], q.col_kind.shape[0], q.group.shape[1]) for q in map(plan_soft, probs)}
-    assert shapes == {soft_bucket(*dims[0])} and soft_bucket(*dims[0])[2] == SOFT_SLOTS
+    assert shapes == {soft_bucket(*dims[0])[:3]} and soft_bucket(*dims[0])[2] == SOFT_SLOTS
+    # layered: two towers of one (layers, slots) rung, 1720 and 1376 columns on the ladder, one shape
+    towers = [plan_soft(compile_soft(cuboid(4, 4, k)).problem) for k in (12, 11)]
+    assert {q.layers.shape for q in towers} == {(12, 16)}
+    assert len({(q.mass.shape[0], q.col_kind.shape[0], q.group.shape[1], len(q.chunk)) for q in towers}) == 1
+    assert len({pad_soft(layer_soft(compile_soft(cuboid(4, 4, k)).problem)).col_kind.shape[0] for k in (12, 11)}) == 2
     # a caller that solves one problem many times does not pay for the shared shape
     many = plan_soft(probs[1], calls=1000)
     assert many.col_kind.shape[0] <= bucket_shape(*dims[1])[1] < soft_bucket(*dims[1])[1]

@@ -41,6 +41,9 @@ __all__ = [
     "soft_bucket",
     "SOFT_COLUMNS_PER_BRICK",
     "SOFT_SLOTS",
+    "SOFT_BRICKS_PER_SLOT",
+    "SOFT_COLUMNS_PER_SLOT",
+    "SOFT_CHUNKS_PER_SLOT",
     "pair_chunks",
     "CHUNK",
     "layer_levels",
@@ -321,27 +324,44 @@ def soft_plan(prob: SoftProblem) -> tuple:
     return ("dense",)
 
 
-def soft_bucket(n: int, m: int, p: int) -> tuple[int, int, int]:
-    """The padded (bricks, columns, contact slots per brick) that every
-    small dense soft problem of ``n`` bricks' rung shares: the brick rung,
-    and at least :data:`SOFT_COLUMNS_PER_BRICK` columns per padded brick
-    and :data:`SOFT_SLOTS` contact slots (the ladder's rung of ``m`` or
-    ``p`` where that is larger). On the ladder alone a brick rung splits
-    into a shape for every (columns, slots) rung pair: the first solves of
-    ``repair``'s 100-layout benchmark fell into 46 shapes over 10 brick
-    rungs, each a compile of 3.3-4.6 s, while the padding costs a solve
-    2-70 ms (BENCHMARKS.md, session 35)."""
-    nb = rung(n, MIN_BRICKS)
-    return (nb, max(rung(m, MIN_COLUMNS), rung(SOFT_COLUMNS_PER_BRICK * nb, MIN_COLUMNS)),
-            max(rung(p, MIN_SLOTS), SOFT_SLOTS))
+def soft_bucket(n: int, m: int, p: int, layers: tuple | None = None, chunks: int = 0) -> tuple:
+    """The padded (bricks, columns, contact slots per brick, column chunks)
+    that every soft problem of one rung shares where :func:`plan_soft`
+    allows it: at least :data:`SOFT_SLOTS` contact slots, and
+
+    * dense (``layers`` None; chunks None): the brick rung, at least
+      :data:`SOFT_COLUMNS_PER_BRICK` columns per padded brick;
+    * layered (``layers`` = (L, B), the ladder's layers and slots per
+      layer): per layer slot at least :data:`SOFT_BRICKS_PER_SLOT` bricks,
+      :data:`SOFT_COLUMNS_PER_SLOT` columns and
+      :data:`SOFT_CHUNKS_PER_SLOT` column chunks (``chunks``: the
+      problem's own).
+
+    The ladder's rung of the problem's own size where that is larger. On the
+    ladder alone a rung splits into a shape for every (columns, slots,
+    chunks) rung: the first solves of ``repair``'s 100-layout benchmark fell
+    into 46 shapes over 10 brick rungs, those of 40 mesh layouts of its large
+    set into 31 layered shapes over 14 (L, B) rungs, each a compile of
+    3.3-5.3 s, while the padding costs a solve 2-70 ms dense and 7-26%
+    layered (BENCHMARKS.md, session 35)."""
+    if layers is None:
+        nb = rung(n, MIN_BRICKS)
+        return (nb, max(rung(m, MIN_COLUMNS), rung(SOFT_COLUMNS_PER_BRICK * nb, MIN_COLUMNS)),
+                max(rung(p, MIN_SLOTS), SOFT_SLOTS), None)
+    slots = int(layers[0]) * int(layers[1])
+    return (max(rung(n, MIN_BRICKS), rung(int(np.ceil(SOFT_BRICKS_PER_SLOT * slots)), MIN_BRICKS)),
+            max(rung(m, MIN_COLUMNS), rung(SOFT_COLUMNS_PER_SLOT * slots, MIN_COLUMNS)),
+            max(rung(p, MIN_SLOTS), SOFT_SLOTS),
+            max(rung(chunks, MIN_CHUNKS), rung(SOFT_CHUNKS_PER_SLOT * slots, MIN_CHUNKS)))
 
 
 def plan_soft(prob: SoftProblem, calls: int = 1) -> SoftProblem:
     """The problem padded to the ladder (:func:`pad_soft`), layered
-    (:func:`layer_soft`) when :func:`soft_plan` says that is cheaper; a
-    dense one padded to its brick rung's one shape (:func:`soft_bucket`)
-    where the extra columns cost the caller's ``calls`` solves at most
-    :data:`SOFT_SHARE` of a compile (small problems solved a few times:
+    (:func:`layer_soft`) when :func:`soft_plan` says that is cheaper; padded
+    further, to the one shape its rung shares (:func:`soft_bucket`: the
+    bricks' rung dense, the layers and slots per layer layered), where the
+    extra columns cost the caller's ``calls`` solves at most
+    :data:`SOFT_SHARE` of a compile (problems solved a few times:
     ``repair``'s ranking).
 
     ``calls``: how many solves (loss + gradient) the caller makes of this
@@ -369,15 +389,16 @@ def plan_soft(prob: SoftProblem, calls: int = 1) -> SoftProblem:
         ladder, fit = ("dense", shape[0]), ("dense", fshape[0])
     saving = calls * (plan_seconds(ladder, shape[1], SOFT_SOLVES) - plan_seconds(fit, fshape[1], SOFT_SOLVES))
     fitted = saving > SOFT_COMPILE_S
-    if not fitted and key[0] == "dense":
-        coarse = soft_bucket(n, m, P)
-        extra = calls * (plan_seconds(ladder, coarse[1], SOFT_SOLVES) - plan_seconds(ladder, shape[1], SOFT_SOLVES))
-        if extra <= SOFT_SHARE * SOFT_COMPILE_S:
-            shape = coarse
     if fit[0] == "layered":
         prob = layer_soft(prob, *(fit if fitted else ladder)[1:])
     # chunks: the ladder's rungs are multiples of 8, so 8 never pads more
     c_pad = up(len(prob.chunk), 8) if fitted and prob.chunk is not None else None
+    if not fitted:
+        shared = soft_bucket(n, m, P, None if prob.layers is None else prob.layers.shape,
+                             0 if prob.chunk is None else len(prob.chunk))
+        extra = calls * (plan_seconds(ladder, shared[1], SOFT_SOLVES) - plan_seconds(ladder, shape[1], SOFT_SOLVES))
+        if extra <= SOFT_SHARE * SOFT_COMPILE_S:
+            shape, c_pad = shared[:3], shared[3]
     return pad_soft(prob, *(fshape if fitted else shape), c_pad=c_pad)
 
 
@@ -387,11 +408,18 @@ def plan_soft(prob: SoftProblem, calls: int = 1) -> SoftProblem:
 #: (6.7-9.5 s, session 30).
 SOFT_SOLVES = 18
 SOFT_COMPILE_S = 7.0
-#: The least columns per padded brick and contact slots per brick of a small
-#: dense soft problem (:func:`soft_bucket`): the most that the first solves
-#: of ``repair``'s 100-layout benchmark needed (48.0 and 426).
+#: The least padding of a soft problem's shared shape (:func:`soft_bucket`):
+#: columns per padded brick (dense), contact slots per brick, and bricks,
+#: columns and column chunks per layer slot (layered). The most that the
+#: first solves of ``repair``'s benchmarks needed: 48.0 columns per padded
+#: brick and 426 contact slots (100 small layouts, dense); 0.73 bricks,
+#: 24.4 columns and 5.55 chunks per slot and 420 contact slots (40 mesh
+#: layouts of the large set, 31 of them layered).
 SOFT_COLUMNS_PER_BRICK = 48
 SOFT_SLOTS = 480
+SOFT_BRICKS_PER_SLOT = 0.75
+SOFT_COLUMNS_PER_SLOT = 25
+SOFT_CHUNKS_PER_SLOT = 6
 #: The share of one compile that :func:`plan_soft` lets the shared shape of
 #: :func:`soft_bucket` cost the caller's solves.
 SOFT_SHARE = 0.1
