@@ -394,9 +394,13 @@ def plan_soft(prob: SoftProblem, calls: int = 1) -> SoftProblem:
     # chunks: the ladder's rungs are multiples of 8, so 8 never pads more
     c_pad = up(len(prob.chunk), 8) if fitted and prob.chunk is not None else None
     if not fitted:
-        shared = soft_bucket(n, m, P, None if prob.layers is None else prob.layers.shape,
-                             0 if prob.chunk is None else len(prob.chunk))
-        extra = calls * (plan_seconds(ladder, shared[1], SOFT_SOLVES) - plan_seconds(ladder, shape[1], SOFT_SOLVES))
+        c_own = 0 if prob.chunk is None else len(prob.chunk)
+        shared = soft_bucket(n, m, P, None if prob.layers is None else prob.layers.shape, c_own)
+        # priced as columns: the padded columns, and a padded column chunk as one column
+        # (with the padded bricks and contact slots, that matched three layered problems'
+        # measured extra time within 20%: BENCHMARKS.md, session 35)
+        dc = 0 if shared[3] is None else shared[3] - rung(c_own, MIN_CHUNKS)
+        extra = calls * (plan_seconds(ladder, shared[1] + dc, SOFT_SOLVES) - plan_seconds(ladder, shape[1], SOFT_SOLVES))
         if extra <= SOFT_SHARE * SOFT_COMPILE_S:
             shape, c_pad = shared[:3], shared[3]
     return pad_soft(prob, *(fshape if fitted else shape), c_pad=c_pad)
