@@ -407,3 +407,33 @@ def test_small_soft_problems_of_one_brick_rung_share_one_shape():
         losses.append(float(stability_loss(w, loads, q)))
     assert losses[0] > 1e-3  # the hung block tips the stair: far above the barrier's floor
     np.testing.assert_allclose(losses[0], losses[1], rtol=1e-7)
+
+
+@pytest.mark.usefixtures("x64")
+def test_padded_scene_positions_give_the_same_position_gradient():
+    """pad_positions pads a scene's positions as plan_soft pads its soft
+    problem: the loss and its gradient with respect to the blocks' moves are
+    the same as unpadded (repair --move's gradient, scenes of one rung
+    sharing a compile); padding bodies get no gradient."""
+    from stablelego_jax.loss import position_loss
+    from stablelego_jax.solvers.problem import pad_positions, plan_soft
+    from stablelego_jax.soft import scene_positions, soft_problem
+
+    sc = load_layout(os.path.join(EXAMPLES, "extensions", "stack8_moved.json"))
+    prob, geo = soft_problem(sc), scene_positions(sc)
+    shared, n = plan_soft(prob), sc.n
+    assert shared.col_kind.shape[0] > prob.col_kind.shape[0]
+    n_pad = n + 5  # padding bodies too
+    q = pad_soft(prob, n_pad, shared.col_kind.shape[0], shared.group.shape[1])
+    gq = pad_positions(geo, n_pad, q.col_kind.shape[0])
+    assert gq.pair.max() == n_pad and len(gq.pair) == q.col_kind.shape[0]
+    w = np.zeros(n_pad)
+    w[:n] = 1.0
+    loss, g = jax.value_and_grad(lambda d: position_loss(d, w, None, q, gq))(np.zeros((n_pad, 2)))
+    loss0, g0 = jax.value_and_grad(lambda d: position_loss(d, np.ones(n), None, prob, geo))(np.zeros((n, 2)))
+    assert float(loss0) > 1e-3  # block '8' falls: far above the barrier's floor
+    np.testing.assert_allclose(float(loss), float(loss0), rtol=1e-7)
+    np.testing.assert_allclose(np.asarray(g)[:n], np.asarray(g0), rtol=1e-5, atol=1e-9 * np.abs(g0).max())
+    assert not np.asarray(g)[n:].any()
+    with pytest.raises(ValueError, match="cannot pad"):
+        pad_positions(geo, n - 1, q.col_kind.shape[0])

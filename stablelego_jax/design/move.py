@@ -40,7 +40,11 @@ class MoveOptions:
     blocks searched per round (largest gradient first); first, growth,
     reach: the line search's ladder of distances (reach None: the block's
     longer side); refine: bisection steps at each end of a standing stretch;
-    time_s: wall budget (checked between solves; None: none)."""
+    time_s: wall budget (checked between solves; None: none); min_grad:
+    the least gradient (loss per metre) that gives a block a direction to
+    search (below it the gradient is the loss's rounding: on a scene whose
+    loss does not depend on any block's place it is ~1e-14, and its
+    direction noise)."""
 
     max_blocks: int = 1
     rounds: int = 3
@@ -50,6 +54,7 @@ class MoveOptions:
     reach: float | None = None
     refine: int = 8
     time_s: float | None = None
+    min_grad: float = 1e-9
     params: Params = Params()
 
 
@@ -109,11 +114,17 @@ def _gradient(scene: Scene, params: Params) -> np.ndarray:
 
     from ..loss import LossOptions, position_loss
     from ..soft import scene_positions, soft_problem
+    from ..solvers.problem import pad_positions, plan_soft
 
-    prob, geo = soft_problem(scene, params), scene_positions(scene, params)
+    # padded as repair's problems are (plan_soft): scenes of one rung share a compiled gradient
+    prob = plan_soft(soft_problem(scene, params))
+    n_pad, n = prob.mass.shape[0], scene.n
+    geo = pad_positions(scene_positions(scene, params), n_pad, prob.col_kind.shape[0])
+    w = np.zeros(n_pad)
+    w[:n] = 1.0
     opts = LossOptions(params=params)
-    g = jax.grad(lambda d: position_loss(d, np.ones(scene.n), None, prob, geo, opts=opts))(np.zeros((scene.n, 2)))
-    return np.where(geo.movable[:, None], np.asarray(g, np.float64), 0.0)
+    g = jax.grad(lambda d: position_loss(d, w, None, prob, geo, opts=opts))(np.zeros((n_pad, 2)))
+    return np.where(geo.movable[:n, None], np.asarray(g, np.float64)[:n], 0.0)
 
 
 def move_repair(scene: Scene, opts: MoveOptions = MoveOptions()) -> MoveResult:
@@ -141,7 +152,7 @@ def move_repair(scene: Scene, opts: MoveOptions = MoveOptions()) -> MoveResult:
         moved = {m.key for m in moves}
         if len(moved) >= opts.max_blocks:
             mag = np.where([k in moved for k in cur.keys], mag, 0.0)
-        order = [int(b) for b in np.argsort(-mag, kind="stable")[: opts.tries] if mag[b] > 0]
+        order = [int(b) for b in np.argsort(-mag, kind="stable")[: opts.tries] if mag[b] > opts.min_grad]
         best = None  # (badness, scene, analysis, move)
         for b in order:
             u = -g[b] / mag[b]

@@ -15,7 +15,7 @@ import numpy as np
 
 from ..model import KNOB, NORMAL, SIDE, ForceModel, Params
 from ..score import equilibrium, equilibrium_t
-from ..soft import SoftProblem
+from ..soft import ScenePositions, SoftProblem
 
 __all__ = [
     "merge_plans",
@@ -32,6 +32,7 @@ __all__ = [
     "bucket_shape",
     "pad_to_bucket",
     "pad_soft",
+    "pad_positions",
     "stack_soft",
     "layer_soft",
     "soft_levels",
@@ -223,6 +224,30 @@ def pad_soft(prob: SoftProblem, n_pad: int | None = None, m_pad: int | None = No
         slot=slot,
         layers=prob.layers,
         chunk=chunk,
+    )
+
+
+def pad_positions(geo: ScenePositions, n_pad: int, m_pad: int) -> ScenePositions:
+    """A scene's :class:`~stablelego_jax.soft.ScenePositions` padded as its
+    soft problem is (:func:`pad_soft` to ``n_pad`` bodies, ``m_pad``
+    columns), so that :func:`~stablelego_jax.loss.position_loss` of scenes
+    of one padded shape shares a compile. Padding bodies sit at the origin
+    and never move; padding columns have no force (zero wrench) and act on
+    body 0 against the ground; the ground is body ``n_pad``."""
+    n, m = len(geo.centre), len(geo.pair)
+    if n_pad < n or m_pad < m:
+        raise ValueError(f"cannot pad (n={n}, m={m}) positions to ({n_pad}, {m_pad})")
+    dm, dn = m_pad - m, n_pad - n
+    pair = np.where(np.asarray(geo.pair) >= n, n_pad, geo.pair)
+    pair = np.concatenate([pair, np.tile(np.array([[0, n_pad]]), (dm, 1))]).astype(np.int32)
+    return ScenePositions(
+        pair=pair,
+        force=np.concatenate([geo.force, np.zeros((dm, 3))]),
+        point=np.concatenate([geo.point, np.zeros((dm, 3))]),
+        jac=np.concatenate([geo.jac, np.zeros((dm,) + geo.jac.shape[1:])]),
+        smooth=np.concatenate([geo.smooth, np.ones(dm, bool)]),
+        centre=np.concatenate([geo.centre, np.zeros((dn, 3))]),
+        movable=np.concatenate([geo.movable, np.zeros(dn, bool)]),
     )
 
 
