@@ -354,8 +354,9 @@ def soft_bucket(n: int, m: int, p: int, layers: tuple | None = None, chunks: int
     that every soft problem of one rung shares where :func:`plan_soft`
     allows it: at least :data:`SOFT_SLOTS` contact slots, and
 
-    * dense (``layers`` None; chunks None): the brick rung, at least
-      :data:`SOFT_COLUMNS_PER_BRICK` columns per padded brick;
+    * dense (``layers`` None; the fourth entry None: no column chunks): the
+      brick rung, at least :data:`SOFT_COLUMNS_PER_BRICK` columns per
+      padded brick;
     * layered (``layers`` = (L, B), the ladder's layers and slots per
       layer): per layer slot at least :data:`SOFT_BRICKS_PER_SLOT` bricks,
       :data:`SOFT_COLUMNS_PER_SLOT` columns and
