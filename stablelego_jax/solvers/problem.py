@@ -61,6 +61,7 @@ __all__ = [
     "fit_plan",
     "plan_problem",
     "row_scale",
+    "scaled_wrenches",
     "operators",
     "LayerGram",
     "layer_gram",
@@ -426,7 +427,8 @@ def plan_soft(prob: SoftProblem, calls: int = 1) -> SoftProblem:
         # (with the padded bricks and contact slots, that matched three layered problems'
         # measured extra time within 20%: BENCHMARKS.md, session 35)
         dc = 0 if shared[3] is None else shared[3] - rung(c_own, MIN_CHUNKS)
-        extra = calls * (plan_seconds(ladder, shared[1] + dc, SOFT_SOLVES) - plan_seconds(ladder, shape[1], SOFT_SOLVES))
+        extra = calls * (plan_seconds(ladder, shared[1] + dc, SOFT_SOLVES)
+                         - plan_seconds(ladder, shape[1], SOFT_SOLVES))
         if extra <= SOFT_SHARE * SOFT_COMPILE_S:
             shape, c_pad = shared[:3], shared[3]
     return pad_soft(prob, *(fshape if fitted else shape), c_pad=c_pad)
@@ -898,6 +900,14 @@ def row_scale(params: Params):
     return s / params.T, w
 
 
+def scaled_wrenches(col_coef, params: Params):
+    """(m, 2, 6) wrench per unit force in the solvers' scaled rows (forces in
+    T, torques in T stud; :func:`row_scale`), from ``col_coef`` in N and N m
+    per N: the columns of the verdict LP (:func:`operators`) and of the soft
+    problems (:mod:`.soft_ipm`)."""
+    return col_coef * row_scale(params)[0].astype(col_coef.dtype) * params.T
+
+
 def operators(prob: Problem, params: Params):
     """The equilibrium operator in scaled units: (A, A', coef, g, w).
 
@@ -908,7 +918,7 @@ def operators(prob: Problem, params: Params):
     on the scaled wrenches.
     """
     s6, w6 = (a.astype(prob.col_coef.dtype) for a in row_scale(params))
-    coef = prob.col_coef * s6 * params.T  # unit force in units of T
+    coef = scaled_wrenches(prob.col_coef, params)  # unit force in units of T
     cb = prob.col_brick
     n = prob.gravity.shape[0]
 

@@ -40,9 +40,9 @@ from ..runtime import x64
 from ..score import bottom_sum, equilibrium, equilibrium_t
 from ..soft import SoftProblem
 from .blocks import block_cholesky, block_solve
-from .newton import reduced_matrix
-from .problem import row_scale
 from .interior import boundary_step, centring, iterate
+from .newton import reduced_matrix
+from .problem import row_scale, scaled_wrenches
 
 __all__ = [
     "BarrierOptions",
@@ -112,8 +112,7 @@ class SoftContext(NamedTuple):
 def soft_context(weights, loads, prob: SoftProblem, params: Params) -> SoftContext:
     dtype = jnp.float64
     n = prob.mass.shape[0]
-    s6, w6 = (jnp.asarray(a, dtype) for a in row_scale(params))
-    cost = w6 * jnp.ones((n, 6), dtype)
+    cost = jnp.asarray(row_scale(params)[1], dtype) * jnp.ones((n, 6), dtype)
     w_eff = jnp.asarray(weights, dtype)[prob.unit]
     om = jnp.where(prob.brick_mask, w_eff, 0.0)
     om_ext = jnp.concatenate([om, jnp.ones((1,), dtype)])
@@ -125,7 +124,7 @@ def soft_context(weights, loads, prob: SoftProblem, params: Params) -> SoftConte
     o0 = jnp.where(same, 1.0, w1)
     o1 = jnp.where(same, 1.0, w0)
     real = jnp.asarray(prob.col_mask)
-    coef = jnp.asarray(prob.col_coef, dtype) * s6 * params.T  # scaled rows (forces in T), as the verdict's
+    coef = scaled_wrenches(jnp.asarray(prob.col_coef, dtype), params)
     coef_t = coef * jnp.stack([o0, o1], axis=1)[:, :, None]
     load = jnp.zeros((n,), dtype) if loads is None else jnp.asarray(loads, dtype)
     gz = -(jnp.asarray(prob.mass, dtype) + load) * params.g / params.T
