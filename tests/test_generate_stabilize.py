@@ -40,6 +40,27 @@ def test_local_re_merge_makes_a_falling_blob_stand_on_the_same_cells():
     assert r.exact_calls >= 2 and r.soft_calls == 0
 
 
+@pytest.mark.parametrize("seed", [0, 9])
+def test_screened_covers_change_nothing_but_the_solver_calls(monkeypatch, seed):
+    # a cover with more floating bricks than the cover it must beat is set
+    # aside without an exact solve; with the screen switched off (no brick
+    # counted as floating) the search solves them and decides the same
+    from stablelego_jax.generate import stabilize as mod
+
+    vox = random_voxel_shape(seed, grid=8, kind="blob")
+    opts = StabilizeOptions(seeds=1, gradient=False, rounds=6, time_s=600)
+    with_screen = stabilize(vox, opts)
+    monkeypatch.setattr(mod, "floating_bricks", lambda layout: np.zeros(layout.n, bool))
+    without = stabilize(vox, opts)
+    assert with_screen.screened >= 1 and without.screened == 0
+    assert with_screen.exact_calls + with_screen.screened == without.exact_calls
+    assert (with_screen.stable, with_screen.rounds, with_screen.method, with_screen.failing) == \
+        (without.stable, without.rounds, without.method, without.failing)
+    same = sorted(map(tuple, np.hstack([with_screen.layout.pos, with_screen.layout.size]).tolist()))
+    assert same == sorted(map(tuple, np.hstack([without.layout.pos, without.layout.size]).tolist()))
+    assert with_screen.to_json()["screened"] == with_screen.screened
+
+
 def test_placements_and_exact_cover_of_a_region():
     vox = _blob()
     lay = merge_voxels(vox, seed=0)

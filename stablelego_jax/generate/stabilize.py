@@ -4,8 +4,8 @@
 one voxel shape (IoU 1, no overlaps, library bricks only):
 
 1. the heuristic merge (:func:`~stablelego_jax.generate.voxels.merge_voxels`)
-   with ``seeds`` tie-break seeds; the first cover that stands by the exact
-   solver is the answer;
+   with ``seeds`` tie-break seeds, those with no floating brick first; the
+   first cover that stands by the exact solver is the answer;
 2. rounds of re-merging around the failing bricks (the random rounds walk
    from the seed-0 merge, the gradient rounds from the best cover found by
    then, a seed's or a round's): the *region* (the cells
@@ -35,6 +35,13 @@ one voxel shape (IoU 1, no overlaps, library bricks only):
    candidate layout is verified by the exact solver and kept when it fails
    less (fewer failing bricks, then a smaller overload
    :func:`~stablelego_jax.design.repair.exact_loss`);
+
+   a cover is first *screened* by its floating bricks (no chain of knob
+   connections to the ground, :func:`~.voxels.floating_bricks`: a
+   connectivity check, no solve). Each of them fails, so a cover with more
+   of them than the cover it would have to beat fails with more bricks:
+   it is set aside without an exact solve (the search decides as it would
+   with the solve; only the solver calls and the time differ);
 3. with ``allow_support``: if no cover stands within the budget, the fewest
    support bricks outside the shape (:func:`~stablelego_jax.design.repair.repair`).
 
@@ -54,7 +61,7 @@ from ..design.repair import RepairOptions, exact_loss, repair
 from ..layout import Layout, brick_layout, cells_of, table_i_bricks
 from ..model import Params
 from ..runtime import x64
-from .voxels import DEFAULT_BRICKS, merge_voxels, oriented, placements_in
+from .voxels import DEFAULT_BRICKS, floating_bricks, merge_voxels, oriented, placements_in
 
 __all__ = ["StabilizeOptions", "StabilizeResult", "stabilize", "layout_voxels", "merit", "recover_region",
            "ungroundable_cells"]
@@ -97,8 +104,10 @@ class StabilizeResult:
     heuristic merge with seed 0; method: which step found it ("heuristic",
     "seed", "gradient", "random", "support" or "none"); bricks_changed: bricks
     of ``layout`` not in ``start`` (same cell and size); exact_calls /
-    soft_calls: solver calls; failing: failing bricks of ``layout``;
-    reason: why it does not stand, when it does not."""
+    soft_calls: solver calls; screened: covers set aside without an exact
+    solve (more floating bricks than the cover to beat fails with);
+    failing: failing bricks of ``layout``; reason: why it does not stand,
+    when it does not."""
 
     layout: Layout
     start: Layout
@@ -112,12 +121,14 @@ class StabilizeResult:
     support_bricks: int
     time_s: float
     reason: str = ""
+    screened: int = 0
 
     def to_json(self) -> dict:
         return {"stable": self.stable, "method": self.method, "bricks": self.layout.n,
                 "bricks_changed": self.bricks_changed, "support_bricks": self.support_bricks,
                 "failing": self.failing, "exact_calls": self.exact_calls, "soft_calls": self.soft_calls,
-                "rounds": self.rounds, "time_s": round(self.time_s, 3), "reason": self.reason}
+                "screened": self.screened, "rounds": self.rounds, "time_s": round(self.time_s, 3),
+                "reason": self.reason}
 
 
 def layout_voxels(layout: Layout, which: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -376,18 +387,30 @@ def stabilize(vox: np.ndarray, opts: StabilizeOptions = StabilizeOptions(), sour
     t0 = time.perf_counter()
     say = progress or (lambda s: None)
     types = oriented(opts.bricks)
-    calls = {"exact": 0, "soft": 0}
+    calls = {"exact": 0, "soft": 0, "screened": 0}
 
     def check(layout: Layout) -> Analysis:
         calls["exact"] += 1
         return analyze_layout(layout, solver="exact", params=opts.params)
+
+    def floating(layout: Layout) -> int:
+        return int(floating_bricks(layout).sum())
+
+    def beaten(n_floating: int, *rivals: Analysis) -> bool:
+        """Whether a cover with ``n_floating`` floating bricks fails with
+        more bricks than each rival does (then it cannot beat any of them:
+        every floating brick fails); counted as screened."""
+        out = all(n_floating > merit(r)[0] for r in rivals)
+        calls["screened"] += out
+        return out
 
     def out(layout, a, method, rounds, support=0, reason=""):
         calls["soft"] += grad.steps_done if grad is not None else 0
         return StabilizeResult(layout=layout, start=start, stable=bool(a.stable), method=method,
                                bricks_changed=_same_bricks(layout, start), exact_calls=calls["exact"],
                                soft_calls=calls["soft"], rounds=rounds, failing=merit(a)[0],
-                               support_bricks=support, time_s=time.perf_counter() - t0, reason=reason)
+                               support_bricks=support, time_s=time.perf_counter() - t0, reason=reason,
+                               screened=calls["screened"])
 
     grad = None
     start = merge_voxels(vox, seed=0, bricks=opts.bricks, source=source)
@@ -396,10 +419,18 @@ def stabilize(vox: np.ndarray, opts: StabilizeOptions = StabilizeOptions(), sour
     say(f"heuristic merge: {start.n} bricks, {merit(start_a)[0]} failing")
     if start_a.stable:
         return out(start, start_a, "heuristic", 0)
+    # the seeds' covers with no floating brick first (only they can stand), each group in seed order
+    covers = []
     for seed in range(1, opts.seeds):
         if time.perf_counter() - t0 > opts.time_s:
             break
         lay = merge_voxels(vox, seed=seed, bricks=opts.bricks, source=source)
+        covers.append((floating(lay) > 0, seed, lay))
+    for fl, seed, lay in sorted(covers, key=lambda c: c[:2]):
+        if time.perf_counter() - t0 > opts.time_s:
+            break
+        if fl and beaten(floating(lay), best_a):
+            continue
         a = check(lay)
         if merit(a) < merit(best_a):
             best, best_a, how = lay, a, "seed"
@@ -433,6 +464,8 @@ def stabilize(vox: np.ndarray, opts: StabilizeOptions = StabilizeOptions(), sour
         def attempt(name, order):
             nonlocal best, best_a, how, cur, cur_a
             lay = recover_region(base, region, order, pos, size, types)
+            if beaten(floating(lay), cur_a, best_a):
+                return False
             a = check(lay)
             if merit(a) < merit(best_a):
                 best, best_a, how = lay, a, name
@@ -458,7 +491,7 @@ def stabilize(vox: np.ndarray, opts: StabilizeOptions = StabilizeOptions(), sour
                 grad = None
         stuck = 0 if improved else min(stuck + 1, 4)
         say(f"round {rounds}: region {int(region.sum())} bricks, {merit(cur_a)[0]} failing"
-            f" (best {merit(best_a)[0]}, {how}), {calls['exact']} exact solves")
+            f" (best {merit(best_a)[0]}, {how}), {calls['exact']} exact solves, {calls['screened']} covers screened")
     if best_a.stable:
         return out(best, best_a, how, rounds)
     reason = (f"{int(lost.sum())} cells of the shape have no chain of bricks to the ground in any cover (no "
