@@ -1,11 +1,16 @@
 """Stable exact covers of voxel shapes (issue 19, item 1): four methods side by side.
 
     python benchmarks/stabilize.py [--procedural 200] [--time 60] [--rounds 12]
+        [--mesh-configs 20:upright ...] [--out FILE]
 
-Shapes: the shared meshes at grid 20 (up axes as benchmarks/meshes.py) and
-``--procedural`` voxel shapes of stablelego_jax.generate.voxels
-(random_voxel_shape: blobs, boxes, spheres, arches, overhangs; grids 8-20,
-seeded), every one judged by the exact solver. Per shape and method one
+Shapes: the shared meshes at each ``--mesh-configs`` entry ``GRID:UP``
+(default ``20:upright``: grid 20, each mesh upright, up axes as
+benchmarks/meshes.py; ``UP`` may also be ``x``, ``y`` or ``z``, the mesh
+axis turned up, which lays most meshes on a side) and ``--procedural``
+voxel shapes of stablelego_jax.generate.voxels (random_voxel_shape: blobs,
+boxes, spheres, arches, overhangs; grids 8-20, seeded), every one judged by
+the exact solver. A mesh shape is named ``mesh:FILE`` at ``20:upright`` (as
+in session 13's rows) and ``mesh:FILE:gGRID:UP`` otherwise. Per shape and method one
 line in benchmarks/results/stabilize.jsonl (resumable: shapes already
 there are skipped):
 
@@ -44,18 +49,29 @@ RESULTS = os.path.join(HERE, "results")
 Y_UP = {"bunny.ply", "chair_model.obj", "rabbit.obj", "target.obj", "tube.obj", "wallhole.obj"}
 KINDS = [k for k in SHAPE_KINDS if k != "floating"]
 # the search's version: 2 = random rounds first, then gradient rounds; 3 = the random rounds from the
-# seed-0 merge (both session 13); rows without it: 1
-VERSION = 3
+# seed-0 merge (both session 13); 4 = covers screened by their floating bricks before an exact solve,
+# the seeds with no floating brick first (session 36); rows without it: 1
+VERSION = 4
 GRIDS = (8, 10, 12, 16, 20)
 
 
-def shapes(mesh_dir: str, n_proc: int):
-    """(name, vox) of the meshes, then of the procedural shapes."""
+def mesh_config(text: str):
+    """(grid, up) of a ``--mesh-configs`` entry ``GRID:UP`` (UP: upright, x, y or z)."""
+    grid, _, up = text.partition(":")
+    if not grid.isdigit() or up not in ("upright", "x", "y", "z"):
+        raise argparse.ArgumentTypeError(f"{text!r}: expected GRID:UP with UP one of upright, x, y, z")
+    return int(grid), up
+
+
+def shapes(mesh_dir: str, n_proc: int, configs=((20, "upright"),)):
+    """(name, vox) of the meshes at each (grid, up) of ``configs``, then of the procedural shapes."""
     if os.path.isdir(mesh_dir):
-        for f in sorted(os.listdir(mesh_dir)):
-            if f.lower().endswith(MESH_SUFFIXES):
-                yield f"mesh:{f}", lambda f=f: voxelize(os.path.join(mesh_dir, f), grid=20,
-                                                        up="y" if f in Y_UP else "auto").vox
+        for grid, up in configs:
+            for f in sorted(os.listdir(mesh_dir)):
+                if f.lower().endswith(MESH_SUFFIXES):
+                    axis = ("y" if f in Y_UP else "auto") if up == "upright" else up
+                    name = f"mesh:{f}" if (grid, up) == (20, "upright") else f"mesh:{f}:g{grid}:{up}"
+                    yield name, lambda f=f, g=grid, a=axis: voxelize(os.path.join(mesh_dir, f), grid=g, up=a).vox
     for i in range(n_proc):
         kind, grid, seed = KINDS[i % len(KINDS)], GRIDS[(i // len(KINDS)) % len(GRIDS)], i
         yield f"proc:{kind}:g{grid}:s{seed}", lambda k=kind, g=grid, s=seed: random_voxel_shape(s, grid=g, kind=k)
@@ -74,7 +90,7 @@ def run_search(vox, name: str, rounds: int, time_s: float) -> dict:
             else StabilizeOptions(rounds=rounds, time_s=time_s))
     r = stabilize(vox, opts)
     return dict(stable=r.stable, failing=r.failing, exact_calls=r.exact_calls, soft_calls=r.soft_calls,
-                time_s=r.time_s, iou1=same_cells(r.layout, vox), how=r.method,
+                screened=r.screened, time_s=r.time_s, iou1=same_cells(r.layout, vox), how=r.method,
                 bricks_changed=r.bricks_changed, reason=r.reason)
 
 
@@ -110,6 +126,10 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--meshes", default=os.path.join(HERE, "..", "..", "shared", "meshes"))
     ap.add_argument("--procedural", type=int, default=200)
+    ap.add_argument("--mesh-configs", type=mesh_config, nargs="*", default=[(20, "upright")], metavar="GRID:UP",
+                    help="the shared meshes at these grids and up axes (UP: upright, x, y or z; none: no meshes)")
+    ap.add_argument("--max-cells", type=int, default=0,
+                    help="skip shapes of more cells (0: none skipped); named on stderr, no row written")
     ap.add_argument("--rounds", type=int, default=12)
     ap.add_argument("--time", type=float, default=60.0, help="per shape and method (s)")
     ap.add_argument("--out", default=os.path.join(RESULTS, "stabilize.jsonl"))
@@ -120,7 +140,7 @@ def main(argv=None):
     os.makedirs(os.path.dirname(args.out), exist_ok=True)
     done = read_rows(args.out, "shape")
     if args.redo:
-        makers = dict(shapes(args.meshes, args.procedural))
+        makers = dict(shapes(args.meshes, args.procedural, args.mesh_configs))
         redo = [r for r in done.values() if not r["methods"]["heuristic"]["stable"]
                 and r["methods"][args.redo].get("version") != VERSION and r["shape"] in makers]
         for rec in done.values():  # the lost-cell count of session 13's test (bricks, not face neighbours)
@@ -136,9 +156,13 @@ def main(argv=None):
                   f"{'yes' if rec['methods'][args.redo]['stable'] else 'no'}", file=sys.stderr, flush=True)
         summary(list(done.values()))
         return
-    todo = [(n, f) for n, f in shapes(args.meshes, args.procedural) if n not in done]
+    todo = [(n, f) for n, f in shapes(args.meshes, args.procedural, args.mesh_configs) if n not in done]
     for k, (name, make) in enumerate(todo, 1):
         vox = make()
+        if args.max_cells and int(vox.sum()) > args.max_cells:
+            print(f"[{k}/{len(todo)}] {name}: skipped, {int(vox.sum())} cells > --max-cells {args.max_cells}",
+                  file=sys.stderr, flush=True)
+            continue
         rec = {"shape": name, "cells": int(vox.sum()), "ungroundable": int(ungroundable_cells(vox).sum()),
                "ungroundable_test": 2}
         rec["methods"] = run_methods(vox, args.rounds, args.time)
@@ -156,9 +180,19 @@ def summary(recs):
           f"{time.strftime('%Y-%m-%d')}): {len(recs)} shapes.\n")
     print("| shapes | n | " + " | ".join(methods) + " | any method | ungroundable part |")
     print("|---|---|" + "---|" * (len(methods) + 2))
-    for label, sel in (("shared meshes (grid 20)", lambda r: r["shape"].startswith("mesh:")),
-                       ("procedural", lambda r: r["shape"].startswith("proc:")),
-                       ("all", lambda r: True)):
+    def mesh_group(r):  # "20:upright" for session 13's names, else the name's "gGRID:UP"
+        parts = r["shape"].split(":")
+        return "20:upright" if len(parts) == 2 else f"{parts[2][1:]}:{parts[3]}"
+
+    groups = sorted({mesh_group(r) for r in recs if r["shape"].startswith("mesh:")},
+                    key=lambda g: (g != "20:upright", int(g.split(":")[0]), g))
+    rows = [(f"shared meshes, grid {g.split(':')[0]}, {g.split(':')[1]}" if g.split(":")[1] == "upright"
+             else f"shared meshes, grid {g.split(':')[0]}, mesh {g.split(':')[1]} up",
+             lambda r, g=g: r["shape"].startswith("mesh:") and mesh_group(r) == g) for g in groups]
+    if len(groups) > 1:
+        rows.append(("all meshes", lambda r: r["shape"].startswith("mesh:")))
+    rows += [("procedural", lambda r: r["shape"].startswith("proc:")), ("all", lambda r: True)]
+    for label, sel in rows:
         rs = [r for r in recs if sel(r)]
         if not rs:
             continue
@@ -176,9 +210,11 @@ def summary(recs):
     for m in ("local", "stabilize"):
         t = [r["methods"][m]["time_s"] for r in rs]
         c = [r["methods"][m]["exact_calls"] for r in rs]
+        sc = [r["methods"][m].get("screened", 0) for r in rs]
         if t:
             print(f"{m} on those shapes: median {np.median(t):.1f} s (max {max(t):.1f}), "
-                  f"median {np.median(c):.0f} exact solves (max {max(c)}).")
+                  f"median {np.median(c):.0f} exact solves (max {max(c)}), "
+                  f"{sum(sc)} covers screened without a solve.")
     print("\n| shape | cells | heuristic | seeds | local | stabilize (how) | reason |")
     print("|---|---|---|---|---|---|---|")
     for r in rs:
