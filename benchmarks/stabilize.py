@@ -180,15 +180,14 @@ def summary(recs):
           f"{time.strftime('%Y-%m-%d')}): {len(recs)} shapes.\n")
     print("| shapes | n | " + " | ".join(methods) + " | any method | ungroundable part |")
     print("|---|---|" + "---|" * (len(methods) + 2))
-    def mesh_group(r):  # "20:upright" for session 13's names, else the name's "gGRID:UP"
+    def mesh_group(r):  # (grid, up): (20, "upright") for session 13's names, else the name's "gGRID:UP"
         parts = r["shape"].split(":")
-        return "20:upright" if len(parts) == 2 else f"{parts[2][1:]}:{parts[3]}"
+        return (20, "upright") if len(parts) == 2 else (int(parts[2][1:]), parts[3])
 
     groups = sorted({mesh_group(r) for r in recs if r["shape"].startswith("mesh:")},
-                    key=lambda g: (g != "20:upright", int(g.split(":")[0]), g))
-    rows = [(f"shared meshes, grid {g.split(':')[0]}, {g.split(':')[1]}" if g.split(":")[1] == "upright"
-             else f"shared meshes, grid {g.split(':')[0]}, mesh {g.split(':')[1]} up",
-             lambda r, g=g: r["shape"].startswith("mesh:") and mesh_group(r) == g) for g in groups]
+                    key=lambda g: (g != (20, "upright"), g))
+    rows = [(f"shared meshes, grid {grid}, " + ("upright" if up == "upright" else f"mesh {up} up"),
+             lambda r, g=(grid, up): r["shape"].startswith("mesh:") and mesh_group(r) == g) for grid, up in groups]
     if len(groups) > 1:
         rows.append(("all meshes", lambda r: r["shape"].startswith("mesh:")))
     rows += [("procedural", lambda r: r["shape"].startswith("proc:")), ("all", lambda r: True)]

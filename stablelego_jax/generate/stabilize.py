@@ -425,11 +425,11 @@ def stabilize(vox: np.ndarray, opts: StabilizeOptions = StabilizeOptions(), sour
         if time.perf_counter() - t0 > opts.time_s:
             break
         lay = merge_voxels(vox, seed=seed, bricks=opts.bricks, source=source)
-        covers.append((floating(lay) > 0, seed, lay))
-    for fl, seed, lay in sorted(covers, key=lambda c: c[:2]):
+        covers.append((floating(lay), seed, lay))
+    for n_fl, seed, lay in sorted(covers, key=lambda c: (c[0] > 0, c[1])):
         if time.perf_counter() - t0 > opts.time_s:
             break
-        if fl and beaten(floating(lay), best_a):
+        if beaten(n_fl, best_a):
             continue
         a = check(lay)
         if merit(a) < merit(best_a):
