@@ -19,6 +19,10 @@ Configurations (``--configs``):
                  ``score_files(..., params=Params(ridge=0))`` in a child process, as no
                  command-line flag turns the canonical stage off; labels are the same
                  (one optimal cost), scores of tied layouts are not
+  exact-N, vertex-N  the same with ``--jobs N`` (any N: every core of a larger machine)
+  jax-gpu        JAX on its default backend (a GPU where one is installed, not forced to
+                 the CPU as the others are), every local device, ``--jobs`` left at its
+                 default: the command's own choice on that machine
 
 Every JAX process has one XLA pool thread (``PJRT_NPROC=1``, set by the
 package on jaxlib 0.10: ``stablelego_jax.blas``); the flags of session 8's
@@ -59,7 +63,18 @@ CONFIGS = {
     "exact-2": dict(solver="exact", procs=1, jobs=2),
     "auto-2": dict(solver="auto", procs=1, jobs=2, devices="1"),
     "vertex-2": dict(solver="exact", procs=1, jobs=2, vertex=True),
+    "jax-gpu": dict(solver="jax", procs=1, jobs=None, devices="all", platform=None),
 }
+
+
+def config(name: str) -> dict:
+    """CONFIGS[name], or ``exact-N`` / ``vertex-N`` for any N."""
+    if name in CONFIGS:
+        return CONFIGS[name]
+    m = re.fullmatch(r"(exact|vertex)-(\d+)", name)
+    if not m:
+        raise SystemExit(f"unknown configuration {name!r} (known: {', '.join(CONFIGS)}, exact-N, vertex-N)")
+    return dict(solver="exact", procs=1, jobs=int(m.group(2)), vertex=m.group(1) == "vertex")
 VERTEX = """
 import sys
 from stablelego_jax.batch import score_files
@@ -73,8 +88,8 @@ SUMMARY = re.compile(r"solve ([\d.]+) s, compile ([\d.]+) s \((\d+) shapes\), wa
 
 
 def run_config(name: str, inputs: list, work: str, cache: str, run: int) -> dict:
-    cfg = CONFIGS[name]
-    env = dict(os.environ, STABLELEGO_CACHE_DIR=cache, JAX_PLATFORMS="cpu")
+    cfg = config(name)
+    env = dict(os.environ, STABLELEGO_CACHE_DIR=cache, JAX_PLATFORMS=cfg.get("platform", "cpu") or "")
     if "xla" in cfg:
         env["XLA_FLAGS"] = cfg["xla"]
     procs, outs = [], []
@@ -87,7 +102,7 @@ def run_config(name: str, inputs: list, work: str, cache: str, run: int) -> dict
             cmd = [sys.executable, "-c", VERTEX, out, str(cfg["jobs"]), *inputs]
         else:
             cmd = [sys.executable, "-m", "stablelego_jax.cli.main", "score", *inputs, "--out", out, "--quiet",
-                   "--solver", cfg["solver"], "--jobs", str(cfg["jobs"])]
+                   "--solver", cfg["solver"]] + (["--jobs", str(cfg["jobs"])] if cfg["jobs"] else [])
             if cfg["solver"] in ("jax", "auto"):
                 cmd += ["--devices", cfg["devices"]]
             if cfg["procs"] > 1:
@@ -149,14 +164,24 @@ def main() -> None:
                     "(default: this invocation's exact run)")
     args = ap.parse_args()
     names = args.configs.split(",")
+    for name in names:
+        config(name)
+    meta = dict(command="python benchmarks/cores.py " + " ".join(sys.argv[1:]), machine=platform.machine(),
+                cpus=os.cpu_count(), python=platform.python_version(), date=time.strftime("%Y-%m-%d"),
+                accelerator=accelerator())
     work = tempfile.mkdtemp(prefix="stablelego-cores-")
     recs = []
+
+    def dump() -> None:  # after every run, so that a run cut short keeps what it measured
+        with open(args.out, "w") as fh:
+            json.dump(dict(meta=meta, runs=[{k: v for k, v in r.items() if k != "outs"} for r in recs]), fh, indent=1)
     try:
         for name in names:
             cache = os.path.join(work, f"cache-{name}")
             for run in range(1, args.runs + 1):
                 rec = run_config(name, args.inputs, work, cache, run)
                 recs.append(rec)
+                dump()
                 if args.keep:
                     os.makedirs(args.keep, exist_ok=True)
                     for o in rec["outs"]:
@@ -174,13 +199,19 @@ def main() -> None:
                 r.update(agreement(ref, results(r["outs"])))
                 print(f"{r['config']:10s} run {r['run']}: labels {r['labels_agree']}/{r['compared']}, "
                       f"highest score (1e-3) {r['highest_score_agree']}/{r['compared']}")
-            del r["outs"]
     finally:
         shutil.rmtree(work, ignore_errors=True)
-    meta = dict(command="python benchmarks/cores.py " + " ".join(sys.argv[1:]), machine=platform.machine(),
-                cpus=os.cpu_count(), python=platform.python_version(), date=time.strftime("%Y-%m-%d"))
-    with open(args.out, "w") as fh:
-        json.dump(dict(meta=meta, runs=recs), fh, indent=1)
+    dump()
+
+
+def accelerator() -> str | None:
+    """The GPU's name by ``nvidia-smi`` (None where there is none)."""
+    try:
+        out = subprocess.run(["nvidia-smi", "--query-gpu=name,memory.total,driver_version", "--format=csv,noheader"],
+                             capture_output=True, text=True, timeout=30)
+    except (OSError, subprocess.SubprocessError):
+        return None
+    return out.stdout.strip() or None if out.returncode == 0 else None
 
 
 if __name__ == "__main__":

@@ -365,7 +365,8 @@ def iter_analyses(
     the full budget. ``stats`` (a :class:`ScoreStats`) accumulates solve and
     compile time, compiles and non-converged counts. An Analysis of a JAX
     solver has ``time_s`` = its share of its batch(es) and ``iters``.
-    ``jax_jobs``: worker processes of the JAX solvers (None: ``jobs``).
+    ``jax_jobs``: worker processes of the JAX solvers (None: ``jobs``;
+    :func:`jax_pool_size`: on a GPU, none).
     ``fallback``: a layout the JAX solver leaves unconverged is solved
     again, alone (:func:`~stablelego_jax.analysis.resolve_unconverged`: a
     longer run, then the exact solver; its ``solver`` says which answered,
@@ -397,12 +398,23 @@ def iter_analyses(
         yield from _exact_parts(to_exact, jobs, method, exact_method, exact_scale, st)
         solver = "jax"
     n_jax = sum(len(u.items) for u in units)
-    jobs = min(max(1, int(jobs if jax_jobs is None else jax_jobs)), max(len(units), 1))
-    if jobs > 1 and n_dev == 1 and n_jax >= POOL_MIN:
+    jobs = min(jax_pool_size(jobs if jax_jobs is None else jax_jobs, n_dev, n_jax), max(len(units), 1))
+    if jobs > 1:
         yield from _jax_pool(units, jobs, solver, params, opts, first_cap, fallback, st, ready, workers)
         return
     for unit in units:
         yield from _solve_unit(unit, solver, params, opts, n_dev, first_cap, fallback, st)
+
+
+def jax_pool_size(jobs: int, n_dev: int, n_layouts: int) -> int:
+    """Worker processes for the JAX solvers of ``n_layouts`` layouts:
+    ``jobs`` on a CPU backend solving on one device (``n_dev``) with at
+    least ``POOL_MIN`` layouts, else 1. On an accelerator (a GPU) JAX runs
+    in this process: one process holds the device, and workers would each
+    claim its memory."""
+    if n_dev == 1 and n_layouts >= POOL_MIN and jax.default_backend() == "cpu":
+        return max(1, int(jobs))
+    return 1
 
 
 def _exact_parts(loaded, jobs, method, exact_method, exact_scale, st) -> Iterator[list]:
@@ -764,6 +776,14 @@ def _ignore_sigint() -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
+def _exact_worker() -> None:
+    """Initialiser of a HiGHS worker: :func:`_ignore_sigint`, and JAX (used
+    for nothing there) kept on the CPU, so that workers on a machine with
+    an accelerator never claim its memory."""
+    _ignore_sigint()
+    jax.config.update("jax_platforms", "cpu")
+
+
 def _exact_pool(items, jobs, method, exact_method, exact_scale) -> Iterator[list]:
     """:func:`_exact_items` over ``jobs`` spawned worker processes (spawned,
     not forked: the parent may hold JAX's threads), in parts of a few
@@ -771,7 +791,7 @@ def _exact_pool(items, jobs, method, exact_method, exact_scale) -> Iterator[list
     size = max(1, min(16, len(items) // (4 * jobs)))
     parts = [items[k: k + size] for k in range(0, len(items), size)]
     ctx = multiprocessing.get_context("spawn")
-    with concurrent.futures.ProcessPoolExecutor(jobs, mp_context=ctx, initializer=_ignore_sigint) as pool:
+    with concurrent.futures.ProcessPoolExecutor(jobs, mp_context=ctx, initializer=_exact_worker) as pool:
         futs = [pool.submit(_exact_items, part, method, exact_method, exact_scale) for part in parts]
         try:
             for fut in concurrent.futures.as_completed(futs):
@@ -860,7 +880,7 @@ def _score_files(
     os.makedirs(d, exist_ok=True)
     # the JAX pool's workers start now, while this process reads and plans ("auto" may give
     # HiGHS every layout: its workers start when it knows)
-    pool_jobs = int(jobs) if solver in ("jax", "admm") and n_dev == 1 and len(todo) >= POOL_MIN else 1
+    pool_jobs = jax_pool_size(jobs, n_dev, len(todo)) if solver in ("jax", "admm") else 1
     with open(out, "a", encoding="utf-8") as fh, (Workers(pool_jobs) if pool_jobs > 1 else contextlib.nullcontext()) \
             as workers:
 

@@ -13,8 +13,8 @@ from stablelego_jax.generate.objects import analyze_and_write
 from stablelego_jax.generate.procedural import stairs, tower
 from stablelego_jax import load_layout
 from stablelego_jax.analysis import analyze
-from stablelego_jax.batch import (CPU_CACHE_BYTES, ScoreStats, batch_sizes, find_layouts, piece_sizes, plan_bytes,
-                                  read_results, score_files)
+from stablelego_jax.batch import (CPU_CACHE_BYTES, POOL_MIN, ScoreStats, batch_sizes, find_layouts, jax_pool_size,
+                                  piece_sizes, plan_bytes, read_results, score_files)
 from stablelego_jax.cli import main
 from stablelego_jax.solvers.problem import FULL_BATCH
 
@@ -134,6 +134,18 @@ def test_cpu_batches_stay_within_a_cores_cache():
     assert batch_sizes(mid, 64, 1, cpu=True) == 1
     assert batch_sizes(mid, 64, 2, cpu=True) == 2  # one a device
     assert batch_sizes(tiny, 1, 1, cpu=True) == 1  # --batch still caps it
+
+
+def test_jax_workers_only_on_a_cpu(monkeypatch):
+    """JAX worker processes split a CPU's cores; on a GPU the one process
+    that holds the device solves (workers would each claim its memory)."""
+    import jax
+
+    assert jax_pool_size(4, 1, POOL_MIN) == 4
+    assert jax_pool_size(4, 1, POOL_MIN - 1) == 1  # too few layouts to pay for workers
+    assert jax_pool_size(4, 2, 1000) == 1  # several devices: one process shards over them
+    monkeypatch.setattr(jax, "default_backend", lambda: "gpu")
+    assert jax_pool_size(16, 1, 1000) == 1
 
 
 def test_piece_sizes_are_the_padded_batches_solved():

@@ -30,7 +30,7 @@ def add_parser(sub, methods, exact_methods) -> None:
     sc.add_argument("--devices", default="all", help="'all' or the number of local devices to shard over")
     sc.add_argument("--jobs", type=int, default=None,
                     help="worker processes, every solver, from 32 layouts up (default: every core); "
-                         "JAX workers run one device and one XLA thread each")
+                         "JAX workers run one device and one XLA thread each (on a GPU, JAX runs in this process)")
     sc.add_argument("--shard", default=None, metavar="K/N",
                     help="score only part K of N (0-based) of the inputs, chosen by a hash of each name: "
                          "N processes or hosts split a dataset with no coordination, each with its own --out")
