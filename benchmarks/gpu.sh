@@ -30,7 +30,7 @@ MESH=${MESH:-.gpu/bunny.ply}
 SMALL=${SMALL:-benchmarks/results/small500}
 SHARD=${SHARD:-benchmarks/results/shard1000}
 JOBS=$(nproc)
-R=$OUT/r
+R=$(mktemp -d)  # the runs' files; $OUT gets only log.txt and gpu.tgz (a device call brings back few files)
 mkdir -p "$R"
 LOG=$OUT/log.txt
 export PYTHONUNBUFFERED=1
