@@ -1,7 +1,8 @@
 """Stable exact covers of voxel shapes (issue 19, item 1): four methods side by side.
 
     python benchmarks/stabilize.py [--procedural 200] [--time 60] [--rounds 12]
-        [--mesh-configs 20:upright ...] [--out FILE]
+        [--mesh-configs 20:upright ...] [--judge vertex|canonical] [--out FILE]
+        [--redo local|stabilize [--only SHAPE ...]]
 
 Shapes: the shared meshes at each ``--mesh-configs`` entry ``GRID:UP``
 (default ``20:upright``: grid 20, each mesh upright, up axes as
@@ -50,8 +51,9 @@ Y_UP = {"bunny.ply", "chair_model.obj", "rabbit.obj", "target.obj", "tube.obj", 
 KINDS = [k for k in SHAPE_KINDS if k != "floating"]
 # the search's version: 2 = random rounds first, then gradient rounds; 3 = the random rounds from the
 # seed-0 merge (both session 13); 4 = covers screened by their floating bricks before an exact solve,
-# the seeds with no floating brick first (session 36); rows without it: 1
-VERSION = 4
+# the seeds with no floating brick first (session 36); 5 = candidates judged by HiGHS' vertex, the
+# first cover and the answer canonically (session 37; the row's "judge"); rows without it: 1
+VERSION = 5
 GRIDS = (8, 10, 12, 16, 20)
 
 
@@ -84,17 +86,17 @@ def same_cells(layout, vox) -> bool:
     return bool((full == vox).all()) and int(v.sum()) == int(np.prod(layout.size, axis=1).sum())
 
 
-def run_search(vox, name: str, rounds: int, time_s: float) -> dict:
+def run_search(vox, name: str, rounds: int, time_s: float, judge: str = "vertex") -> dict:
     """One stabilize run: ``local`` (seed 0, random rounds only) or ``stabilize`` (defaults)."""
-    opts = (StabilizeOptions(seeds=1, gradient=False, rounds=rounds, time_s=time_s) if name == "local"
-            else StabilizeOptions(rounds=rounds, time_s=time_s))
+    opts = (StabilizeOptions(seeds=1, gradient=False, rounds=rounds, time_s=time_s, judge=judge) if name == "local"
+            else StabilizeOptions(rounds=rounds, time_s=time_s, judge=judge))
     r = stabilize(vox, opts)
     return dict(stable=r.stable, failing=r.failing, exact_calls=r.exact_calls, soft_calls=r.soft_calls,
                 screened=r.screened, time_s=r.time_s, iou1=same_cells(r.layout, vox), how=r.method,
-                bricks_changed=r.bricks_changed, reason=r.reason)
+                bricks_changed=r.bricks_changed, reason=r.reason, judge=judge)
 
 
-def run_methods(vox, rounds: int, time_s: float):
+def run_methods(vox, rounds: int, time_s: float, judge: str = "vertex"):
     out = {}
     t0 = time.perf_counter()
     lay = merge_voxels(vox, seed=0)
@@ -118,7 +120,7 @@ def run_methods(vox, rounds: int, time_s: float):
     out["seeds"] = dict(stable=bool(best[1].stable), failing=merit(best[1])[0], exact_calls=calls,
                         time_s=time.perf_counter() - t0, iou1=same_cells(best[0], vox))
     for name in ("local", "stabilize"):
-        out[name] = dict(run_search(vox, name, rounds, time_s), version=VERSION)
+        out[name] = dict(run_search(vox, name, rounds, time_s, judge), version=VERSION)
     return out
 
 
@@ -133,6 +135,10 @@ def main(argv=None):
     ap.add_argument("--rounds", type=int, default=12)
     ap.add_argument("--time", type=float, default=60.0, help="per shape and method (s)")
     ap.add_argument("--out", default=os.path.join(RESULTS, "stabilize.jsonl"))
+    ap.add_argument("--judge", choices=["vertex", "canonical"], default="vertex",
+                    help="how local and stabilize solve candidate covers (StabilizeOptions.judge)")
+    ap.add_argument("--only", nargs="*", default=None, metavar="SHAPE",
+                    help="with --redo: only these shapes")
     ap.add_argument("--redo", choices=["local", "stabilize"],
                     help="run this method again on the shapes already there where the heuristic falls "
                          "(after a change to it); the rows are rewritten with the new result")
@@ -142,15 +148,16 @@ def main(argv=None):
     if args.redo:
         makers = dict(shapes(args.meshes, args.procedural, args.mesh_configs))
         redo = [r for r in done.values() if not r["methods"]["heuristic"]["stable"]
-                and r["methods"][args.redo].get("version") != VERSION and r["shape"] in makers]
+                and r["methods"][args.redo].get("version") != VERSION and r["shape"] in makers
+                and (args.only is None or r["shape"] in args.only)]
         for rec in done.values():  # the lost-cell count of session 13's test (bricks, not face neighbours)
             if rec.get("ungroundable_test") != 2 and not rec["methods"]["heuristic"]["stable"] and rec["shape"] in makers:
                 rec["ungroundable"] = int(ungroundable_cells(makers[rec["shape"]]()).sum())
                 rec["ungroundable_test"] = 2
                 append_row(args.out, rec)
         for k, rec in enumerate(redo, 1):
-            rec["methods"][args.redo] = dict(run_search(makers[rec["shape"]](), args.redo, args.rounds, args.time),
-                                             version=VERSION)
+            rec["methods"][args.redo] = dict(run_search(makers[rec["shape"]](), args.redo, args.rounds, args.time,
+                                                        args.judge), version=VERSION)
             append_row(args.out, rec)
             print(f"[redo {k}/{len(redo)}] {rec['shape']}: {args.redo} "
                   f"{'yes' if rec['methods'][args.redo]['stable'] else 'no'}", file=sys.stderr, flush=True)
@@ -165,7 +172,7 @@ def main(argv=None):
             continue
         rec = {"shape": name, "cells": int(vox.sum()), "ungroundable": int(ungroundable_cells(vox).sum()),
                "ungroundable_test": 2}
-        rec["methods"] = run_methods(vox, args.rounds, args.time)
+        rec["methods"] = run_methods(vox, args.rounds, args.time, args.judge)
         done[name] = rec
         append_row(args.out, rec)
         m = rec["methods"]

@@ -784,12 +784,37 @@ def _exact_worker() -> None:
     jax.config.update("jax_platforms", "cpu")
 
 
+def exact_parts(costs: Sequence[float], jobs: int, most: int = 16) -> list[list[int]]:
+    """Parts (lists of indices into ``costs``, estimated seconds a layout)
+    for ``jobs`` HiGHS workers, longest first: each part at most ``most``
+    layouts and about a quarter of a worker's share of the total, a layout
+    costlier than that alone. A pool that takes the parts in this order
+    gives the long layouts out first and ends with short parts (longest
+    processing time first), so no worker is left with a run of the
+    largest layouts while the others wait."""
+    order = sorted(range(len(costs)), key=lambda k: -costs[k])
+    cap = sum(costs) / (4 * max(1, jobs))
+    parts: list[list[int]] = []
+    cur: list[int] = []
+    spent = 0.0
+    for k in order:
+        if cur and (len(cur) >= most or spent + costs[k] > cap):
+            parts.append(cur)
+            cur, spent = [], 0.0
+        cur.append(k)
+        spent += costs[k]
+    if cur:
+        parts.append(cur)
+    return parts
+
+
 def _exact_pool(items, jobs, method, exact_method, exact_scale) -> Iterator[list]:
     """:func:`_exact_items` over ``jobs`` spawned worker processes (spawned,
-    not forked: the parent may hold JAX's threads), in parts of a few
-    layouts, yielded as they finish. Each worker runs HiGHS on one core."""
-    size = max(1, min(16, len(items) // (4 * jobs)))
-    parts = [items[k: k + size] for k in range(0, len(items), size)]
+    not forked: the parent may hold JAX's threads), in the parts of
+    :func:`exact_parts` (by :func:`~stablelego_jax.solvers.exact.estimated_seconds`),
+    yielded as they finish. Each worker runs HiGHS on one core."""
+    plan = exact_parts([estimated_seconds(model) for _, _, model in items], jobs)
+    parts = [[items[k] for k in part] for part in plan]
     ctx = multiprocessing.get_context("spawn")
     with concurrent.futures.ProcessPoolExecutor(jobs, mp_context=ctx, initializer=_exact_worker) as pool:
         futs = [pool.submit(_exact_items, part, method, exact_method, exact_scale) for part in parts]

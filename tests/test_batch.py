@@ -13,7 +13,8 @@ from stablelego_jax.generate.objects import analyze_and_write
 from stablelego_jax.generate.procedural import stairs, tower
 from stablelego_jax import load_layout
 from stablelego_jax.analysis import analyze
-from stablelego_jax.batch import (CPU_CACHE_BYTES, POOL_MIN, ScoreStats, batch_sizes, find_layouts, jax_pool_size,
+from stablelego_jax.batch import (CPU_CACHE_BYTES, POOL_MIN, ScoreStats, batch_sizes, exact_parts, find_layouts,
+                                  jax_pool_size,
                                   piece_sizes, plan_bytes, read_results, score_files)
 from stablelego_jax.cli import main
 from stablelego_jax.solvers.problem import FULL_BATCH
@@ -146,6 +147,24 @@ def test_jax_workers_only_on_a_cpu(monkeypatch):
     assert jax_pool_size(4, 2, 1000) == 1  # several devices: one process shards over them
     monkeypatch.setattr(jax, "default_backend", lambda: "gpu")
     assert jax_pool_size(16, 1, 1000) == 1
+
+
+def test_exact_parts_give_the_large_layouts_out_first_and_alone():
+    """45 large layouts (60 s each) among 955 small ones (0.1 s): each large
+    one is a part of its own, first; no part holds more than 16 layouts or
+    (but for a single large one) more than a quarter of a worker's share;
+    every layout is in exactly one part."""
+    costs = [0.1] * 955 + [60.0] * 45
+    parts = exact_parts(costs, 16)
+    assert sorted(k for p in parts for k in p) == list(range(1000))
+    assert parts[:45] == [[k] for k in range(955, 1000)]
+    cap = sum(costs) / (4 * 16)
+    assert all(len(p) <= 16 for p in parts)
+    assert all(len(p) == 1 or sum(costs[k] for k in p) <= cap for p in parts)
+    # costs descend part by part: the pool's queue hands the long ones out first
+    first = [costs[p[0]] for p in parts]
+    assert first == sorted(first, reverse=True)
+    assert exact_parts([], 4) == []
 
 
 def test_piece_sizes_are_the_padded_batches_solved():

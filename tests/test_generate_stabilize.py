@@ -61,6 +61,38 @@ def test_screened_covers_change_nothing_but_the_solver_calls(monkeypatch, seed):
     assert with_screen.to_json()["screened"] == with_screen.screened
 
 
+def test_vertex_judge_gives_the_canonical_verdict_and_a_canonical_answer():
+    """The search judges covers by HiGHS' optimal vertex (no canonical
+    stage): on the covers of several blobs its stand/fall verdict is the
+    canonical one's; the cover returned is reported with its canonical
+    analysis, and both judges find a stable cover of the blob."""
+    import dataclasses
+
+    from stablelego_jax.model import Params
+
+    vertex = dataclasses.replace(Params(), ridge=0.0)
+    verdicts = []
+    for shape in range(3):
+        vox = random_voxel_shape(shape, grid=8, kind="blob")
+        for seed in range(3):
+            lay = merge_voxels(vox, seed=seed)
+            v = analyze_layout(lay, solver="exact", params=vertex, exact_method="highs-ipm")
+            c = analyze_layout(lay, solver="exact")
+            verdicts.append((v.stable, c.stable))
+            assert v.stable == c.stable
+    assert {c for _, c in verdicts} == {True, False}  # both verdicts occur
+    vox = _blob()
+    runs = {j: stabilize(vox, StabilizeOptions(seeds=1, gradient=False, rounds=8, judge=j))
+            for j in ("vertex", "canonical")}
+    for r in runs.values():
+        assert r.stable and _covers_exactly(r.layout, vox)
+        assert analyze_layout(r.layout, solver="exact").stable
+    # the vertex search solves the answer once more, canonically
+    assert runs["vertex"].exact_calls >= 3
+    with pytest.raises(ValueError, match="judge"):
+        StabilizeOptions(judge="simplex")
+
+
 def test_placements_and_exact_cover_of_a_region():
     vox = _blob()
     lay = merge_voxels(vox, seed=0)

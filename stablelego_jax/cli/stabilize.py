@@ -33,6 +33,9 @@ def add_parser(sub) -> None:
     s.add_argument("--reach", type=int_at_least(0), default=2,
                    help="studs around a failing brick whose bricks are re-merged (default 2)")
     s.add_argument("--no-gradient", action="store_true", help="random re-merges only (no gradient move)")
+    s.add_argument("--judge", choices=("vertex", "canonical"), default="vertex",
+                   help="how candidate covers are solved: vertex (default: HiGHS' optimal vertex, the same "
+                        "verdict in about half the time; the answer is reported canonically) or canonical")
     s.add_argument("--allow-support", action="store_true",
                    help="when no cover stands, add the fewest support bricks outside the shape")
     s.add_argument("--bricks", default="all",
@@ -106,7 +109,8 @@ def cmd_stabilize(args) -> int:
         report_error(path, exc, args.json)
         return 2
     opts = StabilizeOptions(seeds=args.seeds, rounds=args.rounds, time_s=args.time, reach=args.reach,
-                            gradient=not args.no_gradient, allow_support=args.allow_support, bricks=bricks)
+                            gradient=not args.no_gradient, allow_support=args.allow_support, bricks=bricks,
+                            judge=args.judge)
 
     def say(msg: str) -> None:
         if not args.quiet:
