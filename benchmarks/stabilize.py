@@ -1,7 +1,7 @@
 """Stable exact covers of voxel shapes (issue 19, item 1): four methods side by side.
 
     python benchmarks/stabilize.py [--procedural 200] [--time 60] [--rounds 12]
-        [--mesh-configs 20:upright ...] [--judge vertex|canonical] [--out FILE]
+        [--mesh-configs 20:upright ...] [--judge interior|vertex|canonical] [--out FILE]
         [--redo local|stabilize [--only SHAPE ...]]
 
 Shapes: the shared meshes at each ``--mesh-configs`` entry ``GRID:UP``
@@ -51,8 +51,9 @@ Y_UP = {"bunny.ply", "chair_model.obj", "rabbit.obj", "target.obj", "tube.obj", 
 KINDS = [k for k in SHAPE_KINDS if k != "floating"]
 # the search's version: 2 = random rounds first, then gradient rounds; 3 = the random rounds from the
 # seed-0 merge (both session 13); 4 = covers screened by their floating bricks before an exact solve,
-# the seeds with no floating brick first (session 36); 5 = candidates judged by HiGHS' vertex, the
-# first cover and the answer canonically (session 37; the row's "judge"); rows without it: 1
+# the seeds with no floating brick first (session 36); 5 = candidates judged without the canonical
+# stage (the row's "judge": interior, Clarabel's LP, by default), a cover judged to stand, the first
+# cover and the answer canonically (session 37); rows without it: 1
 VERSION = 5
 GRIDS = (8, 10, 12, 16, 20)
 
@@ -86,7 +87,7 @@ def same_cells(layout, vox) -> bool:
     return bool((full == vox).all()) and int(v.sum()) == int(np.prod(layout.size, axis=1).sum())
 
 
-def run_search(vox, name: str, rounds: int, time_s: float, judge: str = "vertex") -> dict:
+def run_search(vox, name: str, rounds: int, time_s: float, judge: str = "interior") -> dict:
     """One stabilize run: ``local`` (seed 0, random rounds only) or ``stabilize`` (defaults)."""
     opts = (StabilizeOptions(seeds=1, gradient=False, rounds=rounds, time_s=time_s, judge=judge) if name == "local"
             else StabilizeOptions(rounds=rounds, time_s=time_s, judge=judge))
@@ -96,7 +97,7 @@ def run_search(vox, name: str, rounds: int, time_s: float, judge: str = "vertex"
                 bricks_changed=r.bricks_changed, reason=r.reason, judge=judge)
 
 
-def run_methods(vox, rounds: int, time_s: float, judge: str = "vertex"):
+def run_methods(vox, rounds: int, time_s: float, judge: str = "interior"):
     out = {}
     t0 = time.perf_counter()
     lay = merge_voxels(vox, seed=0)
@@ -135,7 +136,7 @@ def main(argv=None):
     ap.add_argument("--rounds", type=int, default=12)
     ap.add_argument("--time", type=float, default=60.0, help="per shape and method (s)")
     ap.add_argument("--out", default=os.path.join(RESULTS, "stabilize.jsonl"))
-    ap.add_argument("--judge", choices=["vertex", "canonical"], default="vertex",
+    ap.add_argument("--judge", choices=["interior", "vertex", "canonical"], default="interior",
                     help="how local and stabilize solve candidate covers (StabilizeOptions.judge)")
     ap.add_argument("--only", nargs="*", default=None, metavar="SHAPE",
                     help="with --redo: only these shapes")

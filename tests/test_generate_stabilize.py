@@ -61,36 +61,61 @@ def test_screened_covers_change_nothing_but_the_solver_calls(monkeypatch, seed):
     assert with_screen.to_json()["screened"] == with_screen.screened
 
 
-def test_vertex_judge_gives_the_canonical_verdict_and_a_canonical_answer():
-    """The search judges covers by HiGHS' optimal vertex (no canonical
-    stage): on the covers of several blobs its stand/fall verdict is the
-    canonical one's; the cover returned is reported with its canonical
-    analysis, and both judges find a stable cover of the blob."""
+def test_judges_give_the_canonical_verdict_and_a_canonical_answer():
+    """The search judges covers without the canonical stage: Clarabel's
+    interior point on Eq. 9's LP ("interior") or HiGHS' vertex ("vertex").
+    On the covers of several blobs both give the canonical verdict and the
+    same optimal cost; the cover returned is reported with its canonical
+    analysis, and every judge finds a stable cover of the blob."""
     import dataclasses
 
-    from stablelego_jax.model import Params
+    from stablelego_jax.analysis import make_analysis
+    from stablelego_jax.model import Params, compile_layout
+    from stablelego_jax.solvers.exact import solve_lp_interior
 
-    vertex = dataclasses.replace(Params(), ridge=0.0)
+    lp_only = dataclasses.replace(Params(), ridge=0.0)
     verdicts = []
     for shape in range(3):
         vox = random_voxel_shape(shape, grid=8, kind="blob")
         for seed in range(3):
             lay = merge_voxels(vox, seed=seed)
-            v = analyze_layout(lay, solver="exact", params=vertex, exact_method="highs-ipm")
             c = analyze_layout(lay, solver="exact")
-            verdicts.append((v.stable, c.stable))
-            assert v.stable == c.stable
-    assert {c for _, c in verdicts} == {True, False}  # both verdicts occur
+            v = analyze_layout(lay, solver="exact", params=lp_only, exact_method="highs-ipm")
+            model = compile_layout(lay, lp_only)
+            r = solve_lp_interior(model)
+            i = make_analysis(lay, model, r.f, "exact", r.success, 0.0)
+            assert r.success and not r.canonical
+            np.testing.assert_allclose(r.objective, v.objective, rtol=1e-6, atol=1e-9)
+            verdicts.append(c.stable)
+            assert v.stable == c.stable == i.stable
+    assert set(verdicts) == {True, False}  # both verdicts occur
     vox = _blob()
     runs = {j: stabilize(vox, StabilizeOptions(seeds=1, gradient=False, rounds=8, judge=j))
-            for j in ("vertex", "canonical")}
+            for j in ("interior", "vertex", "canonical")}
     for r in runs.values():
         assert r.stable and _covers_exactly(r.layout, vox)
         assert analyze_layout(r.layout, solver="exact").stable
-    # the vertex search solves the answer once more, canonically
-    assert runs["vertex"].exact_calls >= 3
+    # the cover judged to stand is solved once more, canonically
+    assert runs["interior"].exact_calls >= 3 and runs["vertex"].exact_calls >= 3
     with pytest.raises(ValueError, match="judge"):
         StabilizeOptions(judge="simplex")
+
+
+def test_a_cover_the_judge_passes_stands_only_if_the_canonical_solve_agrees(monkeypatch):
+    """A tied layout's verdict can differ between optimal distributions: a
+    judge that (wrongly) says every cover stands makes the search confirm
+    each canonically, so it still returns only a cover that stands."""
+    from stablelego_jax.generate import stabilize as mod
+    from stablelego_jax.solvers.exact import ExactResult
+
+    def says_stands(model, scale=True):  # zero forces: every score 0, "stands"
+        return ExactResult(f=np.zeros(model.m_pad), objective=0.0, status="fake", success=True, canonical=False)
+
+    monkeypatch.setattr(mod, "solve_lp_interior", says_stands)
+    vox = _blob()
+    r = stabilize(vox, StabilizeOptions(seeds=3, gradient=False, rounds=4))
+    assert analyze_layout(r.layout, solver="exact").stable == r.stable
+    assert r.exact_calls >= 2
 
 
 def test_placements_and_exact_cover_of_a_region():

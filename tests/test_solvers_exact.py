@@ -55,6 +55,23 @@ def test_interior_point_method_same_outcome(name):
             assert b.weakest == a.weakest
 
 
+@pytest.mark.parametrize("name", REF)
+def test_lp_by_clarabel_is_an_optimum_with_the_same_verdict(name):
+    """solve_lp_interior (Eq. 9's LP by Clarabel, no canonical stage): the
+    HiGHS optimal cost, and the same verdict on the reference structures."""
+    from stablelego_jax.analysis import make_analysis
+    from stablelego_jax.model import Params, compile_layout
+    from stablelego_jax.solvers.exact import solve_lp_interior
+
+    a = analyze(os.path.join(EXAMPLES, "stablelego", name), solver="exact")
+    model = compile_layout(a.layout, Params(ridge=0.0))
+    r = solve_lp_interior(model)
+    assert r.success and not r.canonical and r.status.startswith("Clarabel")
+    assert r.objective == pytest.approx(a.objective, rel=1e-6, abs=1e-9)
+    b = make_analysis(a.layout, model, r.f, "exact", r.success, 0.0)
+    assert b.stable == a.stable
+
+
 def test_exact_falls_back_to_interior_point(monkeypatch):
     import scipy.optimize
 

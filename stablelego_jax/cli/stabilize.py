@@ -33,9 +33,10 @@ def add_parser(sub) -> None:
     s.add_argument("--reach", type=int_at_least(0), default=2,
                    help="studs around a failing brick whose bricks are re-merged (default 2)")
     s.add_argument("--no-gradient", action="store_true", help="random re-merges only (no gradient move)")
-    s.add_argument("--judge", choices=("vertex", "canonical"), default="vertex",
-                   help="how candidate covers are solved: vertex (default: HiGHS' optimal vertex, the same "
-                        "verdict in about half the time; the answer is reported canonically) or canonical")
+    s.add_argument("--judge", choices=("interior", "vertex", "canonical"), default="interior",
+                   help="how candidate covers are solved: interior (default; Eq. 9's LP by Clarabel, about 8x "
+                        "faster than canonical on large shapes), vertex (HiGHS, about 2x) or canonical; a cover "
+                        "judged to stand is confirmed canonically, and the answer is reported canonically")
     s.add_argument("--allow-support", action="store_true",
                    help="when no cover stands, add the fewest support bricks outside the shape")
     s.add_argument("--bricks", default="all",

@@ -35,8 +35,8 @@ from ..model import NORMAL, SIDE, ForceModel
 # scipy.sparse and scipy.optimize are imported where they are used: importing
 # them costs about half a second, which the JAX path of a short run never needs.
 
-__all__ = ["solve_exact", "least_norm", "least_norm_optimum", "solve_qp", "ExactResult", "EXACT_METHODS",
-           "equilibrium_matrix", "lp_arrays", "estimated_seconds"]
+__all__ = ["solve_exact", "solve_lp_interior", "least_norm", "least_norm_optimum", "solve_qp", "ExactResult",
+           "EXACT_METHODS", "equilibrium_matrix", "lp_arrays", "estimated_seconds"]
 
 
 class ExactResult(dict):
@@ -125,6 +125,26 @@ def solve_exact(model: ForceModel, method: str = "highs", scale: bool = True, ca
         f[:model.m] = res.x[:model.m]
     return ExactResult(f=f, objective=float(res.fun) if res.fun is not None else float("nan"),
                        status=res.message + failed, success=bool(res.status == 0), canonical=False)
+
+
+def solve_lp_interior(model: ForceModel, scale: bool = True) -> ExactResult:
+    """Eq. 9's LP by Clarabel's interior point (:func:`solve_qp` with no
+    quadratic term, to 1e-10), no crossover: an optimal force distribution
+    inside the optimal face, neither a vertex nor the canonical one. About
+    4x faster than HiGHS' interior point with crossover on layouts of
+    hundreds of bricks (a 327-brick blob, 8069 columns: 0.29 s against
+    1.28 s, the same cost to 8 digits), for searches that judge many
+    candidate layouts (:func:`~stablelego_jax.generate.stabilize.stabilize`).
+    Where Clarabel fails, HiGHS' vertex (``status`` says so)."""
+    c, A_eq, b_eq, A_ub, b_ub, bounds = lp_arrays(model, scale)
+    x, status = solve_qp(c, A_eq, b_eq, A_ub, b_ub, bounds, np.zeros(len(c)), max_iter=400)
+    if x is None:
+        r = solve_exact(model, "highs-ipm", scale, canonical=False)
+        r["status"] = f"{r.status} (after Clarabel: {status})"
+        return r
+    f = np.zeros(model.m_pad)
+    f[:model.m] = x[:model.m]
+    return ExactResult(f=f, objective=float(c @ x), status=f"Clarabel {status}", success=True, canonical=False)
 
 
 def least_norm(model: ForceModel, scale: bool = True):
