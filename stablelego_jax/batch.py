@@ -68,7 +68,7 @@ from .solvers.problem import (
 __all__ = ["find_layouts", "read_results", "ScoreStats", "iter_analyses", "analyze_many", "score_files",
            "batch_solver_fn", "batch_sizes", "plan_bytes", "parse_shard", "in_shard", "cpu_cores",
            "RESULT_PREFIX", "SolveUnit", "solve_units", "compiled_ready", "assign_units", "POOL_MIN",
-           "auto_split", "CPU_CACHE_BYTES", "DEVICE_CACHE_BYTES", "worker_order", "Workers"]
+           "auto_split", "ACCELERATOR_SPEEDUP", "ACCELERATOR_COMPILE_S", "CPU_CACHE_BYTES", "DEVICE_CACHE_BYTES", "worker_order", "Workers"]
 
 LAYOUT_EXTS = (".json", ".txt", ".ldr")
 # files that sit beside StableLego layouts but are not layouts
@@ -434,16 +434,32 @@ def _exact_parts(loaded, jobs, method, exact_method, exact_scale, st) -> Iterato
         yield part
 
 
+#: On an accelerator (``--solver auto``): how many times faster the interior point solves than
+#: :meth:`SolveUnit.seconds` estimates (a CPU core), and a compile's seconds. Measured on one
+#: NVIDIA H200 against this project's 2-core CPU (BENCHMARKS.md, session 37): summed solve
+#: time 8.3x lower on the 1000-layout shard, 9.7x on the 500 small layouts; 3.7-4.3 s a shape.
+ACCELERATOR_SPEEDUP = 8.0
+ACCELERATOR_COMPILE_S = 4.0
+
+
 def auto_split(units: Sequence["SolveUnit"], ready=None, n_dev: int = 1,
-               compile_s: float = COMPILE_S) -> tuple[list, list]:
+               compile_s: float | None = None, speedup: float | None = None) -> tuple[list, list]:
     """(items for the exact solver, units for the interior point) of
     ``--solver auto``: each group of units that would share one compiled
     solver (bucket, padded columns, slots and chunks) goes to whichever
     solver is estimated faster: the interior point's solve time
-    (:meth:`SolveUnit.seconds`) plus ``compile_s`` when ``ready`` (see
-    :func:`solve_units`) says its executables are not compiled yet (else a
-    load from disk, ``LOAD_S``), against the sum of HiGHS' estimated times
-    (:func:`~stablelego_jax.solvers.exact.estimated_seconds`)."""
+    (:meth:`SolveUnit.seconds` / ``speedup``) plus ``compile_s`` when
+    ``ready`` (see :func:`solve_units`) says its executables are not
+    compiled yet (else a load from disk, ``LOAD_S``), against the sum of
+    HiGHS' estimated times
+    (:func:`~stablelego_jax.solvers.exact.estimated_seconds`). ``compile_s``
+    and ``speedup`` default to ``COMPILE_S`` and 1 on a CPU backend, to
+    :data:`ACCELERATOR_COMPILE_S` and :data:`ACCELERATOR_SPEEDUP` elsewhere."""
+    cpu = jax.default_backend() == "cpu"
+    if compile_s is None:
+        compile_s = COMPILE_S if cpu else ACCELERATOR_COMPILE_S
+    if speedup is None:
+        speedup = 1.0 if cpu else ACCELERATOR_SPEEDUP
     groups: dict = {}
     for u in units:
         groups.setdefault(u.shape, []).append(u)
@@ -451,7 +467,7 @@ def auto_split(units: Sequence["SolveUnit"], ready=None, n_dev: int = 1,
     for (key, m_pad, p_pad, c_pad), us in groups.items():
         sizes = {batch_rung(len(u.items), n_dev, u.bsz) for u in us}
         warm = ready is not None and ready(key, m_pad, p_pad, c_pad, sizes, us[0].items[0][2])
-        jax_s = sum(u.seconds() for u in us) + (LOAD_S if warm else compile_s)
+        jax_s = sum(u.seconds() for u in us) / speedup + (LOAD_S if warm else compile_s)
         exact_s = sum(estimated_seconds(it[2]) for u in us for it in u.items)
         if exact_s < jax_s:
             to_exact += [it for u in us for it in u.items]

@@ -470,6 +470,18 @@ def test_auto_split_gives_each_group_to_the_faster_solver(monkeypatch):
     ex, jx = auto_split(units, lambda *a: False, compile_s=60.0)
     assert len(ex) == 8 and jx == []
     assert auto_split(units, lambda *a: True, compile_s=60.0)[1] == units  # compiled: no compile to pay
+    # on an accelerator the interior point's estimate is divided by the measured speedup:
+    # HiGHS 8 x 1 s against the interior point's 10 s (CPU) or 10 s / 8 (GPU), compiled
+    monkeypatch.setattr(batch, "estimated_seconds", lambda model: 1.0)
+    monkeypatch.setattr(batch.SolveUnit, "seconds", lambda self: 10.0)
+    assert auto_split(units, lambda *a: True)[1] == []
+    monkeypatch.setattr(batch.jax, "default_backend", lambda: "gpu")
+    assert batch.ACCELERATOR_SPEEDUP > 10.0 / (8.0 - batch.LOAD_S)
+    assert auto_split(units, lambda *a: True)[1] == units
+    assert auto_split(units, lambda *a: True, speedup=1.0)[1] == []
+    # not compiled: an accelerator's compile (ACCELERATOR_COMPILE_S) is paid
+    ex, jx = auto_split(units, lambda *a: False)
+    assert (jx == units) == (10.0 / batch.ACCELERATOR_SPEEDUP + batch.ACCELERATOR_COMPILE_S < 8.0)
 
 
 def test_auto_scores_small_layouts_with_highs_and_says_so(shard, tmp_path, capsys):
