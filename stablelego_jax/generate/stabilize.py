@@ -466,9 +466,13 @@ def stabilize(vox: np.ndarray, opts: StabilizeOptions = StabilizeOptions(), sour
     say(f"heuristic merge: {start.n} bricks, {merit(start_a)[0]} failing")
     if start_a.stable:
         return out(start, start_a, "heuristic", 0)
-    # the seeds' covers with no floating brick first (only they can stand), each group in seed order
+    lost = ungroundable_cells(vox, opts.bricks)
+    if lost.any():
+        say(f"{int(lost.sum())} cells have no chain of bricks to the ground in any cover: no cover can stand")
+    # the seeds' covers with no floating brick first (only they can stand), each group in seed order;
+    # none when some cells cannot be grounded (no cover stands: the search is skipped)
     covers = []
-    for seed in range(1, opts.seeds):
+    for seed in range(1, 1 if lost.any() else opts.seeds):
         if time.perf_counter() - t0 > opts.time_s:
             break
         lay = merge_voxels(vox, seed=seed, bricks=opts.bricks, source=source)
@@ -485,9 +489,6 @@ def stabilize(vox: np.ndarray, opts: StabilizeOptions = StabilizeOptions(), sour
         if a.stable:
             return out(lay, a, "seed", 0)
 
-    lost = ungroundable_cells(vox, opts.bricks)
-    if lost.any():
-        say(f"{int(lost.sum())} cells have no chain of bricks to the ground in any cover: no cover can stand")
     rng = np.random.default_rng(0)
     grad = _Gradient(opts) if opts.gradient else None
     rounds = 0
