@@ -94,7 +94,7 @@ def run_search(vox, name: str, rounds: int, time_s: float, judge: str = "interio
     r = stabilize(vox, opts)
     return dict(stable=r.stable, failing=r.failing, exact_calls=r.exact_calls, soft_calls=r.soft_calls,
                 screened=r.screened, time_s=r.time_s, iou1=same_cells(r.layout, vox), how=r.method,
-                bricks_changed=r.bricks_changed, reason=r.reason, judge=judge)
+                bricks_changed=r.bricks_changed, reason=r.reason, judge=judge, rounds_cap=rounds)
 
 
 def run_methods(vox, rounds: int, time_s: float, judge: str = "interior"):
@@ -142,14 +142,16 @@ def main(argv=None):
                     help="with --redo: only these shapes")
     ap.add_argument("--redo", choices=["local", "stabilize"],
                     help="run this method again on the shapes already there where the heuristic falls "
-                         "(after a change to it); the rows are rewritten with the new result")
+                         "(after a change to it, or with another --rounds than the row's); the rows are "
+                         "rewritten with the new result")
     args = ap.parse_args(argv)
     os.makedirs(os.path.dirname(args.out), exist_ok=True)
     done = read_rows(args.out, "shape")
     if args.redo:
         makers = dict(shapes(args.meshes, args.procedural, args.mesh_configs))
         redo = [r for r in done.values() if not r["methods"]["heuristic"]["stable"]
-                and r["methods"][args.redo].get("version") != VERSION and r["shape"] in makers
+                and (r["methods"][args.redo].get("version") != VERSION
+                     or r["methods"][args.redo].get("rounds_cap", 12) != args.rounds) and r["shape"] in makers
                 and (args.only is None or r["shape"] in args.only)]
         for rec in done.values():  # the lost-cell count of session 13's test (bricks, not face neighbours)
             if rec.get("ungroundable_test") != 2 and not rec["methods"]["heuristic"]["stable"] and rec["shape"] in makers:
