@@ -72,6 +72,18 @@ def test_lp_by_clarabel_is_an_optimum_with_the_same_verdict(name):
     assert b.stable == a.stable
 
 
+def test_lp_by_clarabel_falls_back_to_a_highs_vertex(monkeypatch):
+    from stablelego_jax.model import Params, compile_layout
+    from stablelego_jax.solvers import exact
+
+    lay = load_layout(os.path.join(EXAMPLES, "stablelego", REF[0]))
+    model = compile_layout(lay, Params(ridge=0.0))
+    monkeypatch.setattr(exact, "solve_qp", lambda *a, **k: (None, "MaxIterations"))
+    r = exact.solve_lp_interior(model)
+    assert r.success and not r.canonical and "after Clarabel: MaxIterations" in r.status
+    assert r.objective == pytest.approx(exact.solve_exact(model, "highs-ipm", canonical=False).objective, rel=1e-9)
+
+
 def test_exact_falls_back_to_interior_point(monkeypatch):
     import scipy.optimize
 
