@@ -39,7 +39,7 @@ sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
 from stablelego_jax.generate.mesh import MESH_SUFFIXES, voxelize  # noqa: E402
-from stablelego_jax.generate.stabilize import (StabilizeOptions, layout_voxels, merit,  # noqa: E402
+from stablelego_jax.generate.stabilize import (JUDGES, StabilizeOptions, layout_voxels, merit,  # noqa: E402
                                                stabilize, ungroundable_cells)
 from stablelego_jax.generate.voxels import SHAPE_KINDS, merge_voxels, random_voxel_shape  # noqa: E402
 from stablelego_jax.analysis import analyze_layout  # noqa: E402
@@ -136,7 +136,7 @@ def main(argv=None):
     ap.add_argument("--rounds", type=int, default=12)
     ap.add_argument("--time", type=float, default=60.0, help="per shape and method (s)")
     ap.add_argument("--out", default=os.path.join(RESULTS, "stabilize.jsonl"))
-    ap.add_argument("--judge", choices=["interior", "vertex", "canonical"], default="interior",
+    ap.add_argument("--judge", choices=JUDGES, default="interior",
                     help="how local and stabilize solve candidate covers (StabilizeOptions.judge)")
     ap.add_argument("--only", nargs="*", default=None, metavar="SHAPE",
                     help="with --redo: only these shapes")

@@ -101,6 +101,22 @@ def test_judges_give_the_canonical_verdict_and_a_canonical_answer():
         StabilizeOptions(judge="simplex")
 
 
+def test_cli_judge_choices_are_the_librarys(capsys):
+    """The command line writes the judges out (its parser imports no JAX):
+    it takes every one of JUDGES, refuses others, and defaults to the library's."""
+    from stablelego_jax.cli.main import build_parser
+    from stablelego_jax.generate.stabilize import JUDGES
+
+    parser = build_parser()
+    base = ["stabilize", "in.npy", "--out", "out.json"]
+    assert parser.parse_args(base).judge == StabilizeOptions().judge
+    for judge in JUDGES:
+        assert parser.parse_args(base + ["--judge", judge]).judge == judge
+    with pytest.raises(SystemExit):
+        parser.parse_args(base + ["--judge", "simplex"])
+    assert "invalid choice" in capsys.readouterr().err
+
+
 def test_a_cover_the_judge_passes_stands_only_if_the_canonical_solve_agrees(monkeypatch):
     """A tied layout's verdict can differ between optimal distributions: a
     judge that (wrongly) says every cover stands makes the search confirm

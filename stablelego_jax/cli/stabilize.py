@@ -33,6 +33,7 @@ def add_parser(sub) -> None:
     s.add_argument("--reach", type=int_at_least(0), default=2,
                    help="studs around a failing brick whose bricks are re-merged (default 2)")
     s.add_argument("--no-gradient", action="store_true", help="random re-merges only (no gradient move)")
+    # generate.stabilize.JUDGES, written out: building the parser imports no JAX (a test keeps them equal)
     s.add_argument("--judge", choices=("interior", "vertex", "canonical"), default="interior",
                    help="how candidate covers are solved: interior (default; Eq. 9's LP by Clarabel, about 8x "
                         "faster than canonical on large shapes), vertex (HiGHS, about 2x) or canonical; a cover "
