@@ -60,7 +60,10 @@ def equilibrium_t(coef, col_brick, y):
     per column, ``(A' y)_p = sum over p's two slots of coef . y[brick]``."""
     xp = _xp(y, coef)
     yp = xp.concatenate([y, xp.zeros((1, 6), y.dtype)])
-    return (coef[:, 0] * yp[col_brick[:, 0]]).sum(-1) + (coef[:, 1] * yp[col_brick[:, 1]]).sum(-1)
+    # one gather of both slots (m, 2, 6): XLA's CPU code for two separate
+    # gathers fused with their sums runs 6x slower (the same numbers)
+    s = (coef * yp[col_brick]).sum(-1)
+    return s[:, 0] + s[:, 1]
 
 
 def residual(model, f):
