@@ -80,23 +80,30 @@ def block_cholesky(D, E):
     return C, G
 
 
+def _tri(C, r, trans):
+    """``C^-1 r`` (``trans``: ``C'^-1 r``) for a lower triangular C (k, k)
+    stored row-major: LAPACK is handed ``C'`` (upper, the same buffer read
+    column-major) with the other transpose flag, so that XLA copies no
+    block into column-major order for one right-hand side (a 720-row
+    block solve 19 ms instead of 29; the same numbers)."""
+    return jax.scipy.linalg.solve_triangular(C.T, r, lower=False, trans=1 - trans)
+
+
 def block_solve(C, G, r):
     """Solve M y = r (r: (L, k)) with the factors of :func:`block_cholesky`."""
-    tri = jax.scipy.linalg.solve_triangular
     if C.shape[0] == 1:  # dense: two triangular solves, nothing coupling layers
-        y = tri(C[0], r[0], lower=True)
-        return tri(C[0], y, lower=True, trans=1)[None]
+        return _tri(C[0], _tri(C[0], r[0], 0), 1)[None]
 
     def fwd(t, inp):  # t = G[l-1]' y[l-1], carried: no shifted copy of G
         Cl, Gl, rl = inp
-        y = tri(Cl, rl - t, lower=True)
+        y = _tri(Cl, rl - t, 0)
         return Gl.T @ y, y
 
     _, y = jax.lax.scan(fwd, jnp.zeros_like(r[0]), (C, G, r))
 
     def bwd(xnext, inp):
         Cl, Gl, yl = inp
-        x = tri(Cl, yl - Gl @ xnext, lower=True, trans=1)
+        x = _tri(Cl, yl - Gl @ xnext, 1)
         return x, x
 
     _, x = jax.lax.scan(bwd, jnp.zeros_like(r[0]), (C, G, y), reverse=True)
