@@ -4,8 +4,9 @@ The point of the *central path* of the paper's Eq. 9 linear programme at
 barrier parameter ``mu``, for a :class:`~stablelego_jax.soft.SoftProblem`
 with existence weights and extra loads (see :mod:`stablelego_jax.loss` for
 the problem, its units and what its gradient means). It is solved by an
-infeasible primal-dual interior-point method (Mehrotra predictor-corrector;
-at most ``iters`` iterations of the loop both interior points share,
+infeasible primal-dual interior-point method (Mehrotra predictor-corrector,
+then centring steps with a second-order corrector; at most ``iters``
+iterations of the loop both interior points share,
 :func:`~stablelego_jax.solvers.interior.iterate`, stopping once the
 iterate is centred at ``mu``) in which each Newton system is reduced, per
 column and in closed form, to the changes of the residual rows' prices
@@ -60,7 +61,8 @@ class BarrierOptions:
 
     mu: barrier parameter at which forces are returned and differentiated
       (-> 0 gives Eq. 9's LP).
-    iters: most interior-point iterations (a ``while_loop``: it stops once
+    iters: most interior-point iterations (two ``while_loop``s, the
+      second centring with a second-order corrector: it stops once
       mean(s z / w) <= 1.5 mu and every s z / w is within a factor
       ``centred`` of mu; under ``vmap`` when every problem has stopped).
     knob_cost: gamma, the cost (per T) of knob presses.
@@ -400,10 +402,13 @@ def _ipm(ctx: SoftContext, opts: BarrierOptions):
     kept: fraction 0.99 to the boundary, no line search).
 
     The barrier of inequality kind k is weighted by w_k (:func:`_weights`);
-    each iteration targets ``tau = max(mu, sigma mean(s z / w))``; once
-    ``tau = mu`` the steps are pure centring steps towards the point of the
-    central path at ``mu``, which is returned (with the residual rows' price
-    and curvature there, for the backward pass, and the optimality residual)."""
+    each iteration targets ``tau = max(mu, sigma mean(s z / w))``. At the
+    first step whose target is ``mu`` itself (a pure centring step) a
+    second loop takes over: centring steps with a second-order corrector
+    (``centre_once``) towards the point of the central path at ``mu``,
+    which is returned (with the residual rows' price and curvature there,
+    for the backward pass, and the optimality residual). Both loops
+    together take at most ``opts.iters`` steps."""
     dtype = ctx.g.dtype
     n = ctx.g.shape[0]
     ons = _masks(ctx)
@@ -429,7 +434,7 @@ def _ipm(ctx: SoftContext, opts: BarrierOptions):
         rr, pc = _system(x, ctx, dpsi, ddpsi, zeta[:4], h[:4], opts)
         return rp, h, R_r, dpsi, rr, pc
 
-    def direction(x, r, s, z, target, lin):
+    def direction(x, r, s, z, target, lin, cap=1.0):
         rp, h, _, dpsi, rr, _ = pieces(x, r, s, z, target)
         (dS, dD, dt), y, d2 = _solve(ctx, plan, lin, rr)
         dx = (-dS, -dD, -dt)
@@ -459,7 +464,7 @@ def _ipm(ctx: SoftContext, opts: BarrierOptions):
         dz = [_msk(zcomp(k, ds[k]), ons[k]) for k in range(4)]
         ds = tuple(_msk(v, on) for v, on in zip(ds, ons[:4])) + (dsa, dsb)
         dz = tuple(_msk(v, on) for v, on in zip(dz, ons[:4])) + (dza, dzb)
-        step = jnp.asarray(1.0, dtype)
+        step = jnp.asarray(cap, dtype)
         for sv, dsv, zv, dzv, o in zip(s, ds, z, dz, ons):
             step = jnp.minimum(step, jnp.minimum(boundary_step(sv, dsv, o), boundary_step(zv, dzv, o)))
         return dx, dr, ds, dz, step
@@ -473,17 +478,46 @@ def _ipm(ctx: SoftContext, opts: BarrierOptions):
         return jnp.max(jnp.stack([jnp.abs(_msk(sv * zv / (w * tau) - 1.0, o)).max()
                                   for sv, zv, o, w in zip(s, z, ons, wts)]))
 
-    def step(state):
-        new = step_once(state)
+    def centred(s, z):
+        return (mean_gap(s, z) <= 1.5 * opts.mu) & (centrality(s, z, opts.mu) <= opts.centred)
+
+    def step(state, centre=False):
+        new, final = (centre_once if centre else step_once)(state)
         # stop once centred on the final barrier parameter: further centring
         # steps only stir rounding errors around
-        x, r, s, z = new
-        mu_now = mean_gap(s, z)
-        ok = (mu_now <= 1.5 * opts.mu) & (centrality(s, z, opts.mu) <= opts.centred)
+        ok = centred(*new[2:])
         # guard: near the end a step that loses primal feasibility (rounding
         # in a near-singular system) is refused and the iterate kept
         bad = (primal(new) > jnp.maximum(1e-6, 10.0 * primal(state))) & (mean_gap(*state[2:]) < 1e-3)
-        return new, ok, bad
+        # the first loop hands over to the second at its first step towards mu itself
+        return new, ok | final, bad
+
+    def centre_once(state):
+        """A step of the second loop, towards the central point at mu: the
+        centring direction, then the same with the error of the
+        complementarity products at its step taken off its target (a
+        second-order corrector), kept where it goes at least as far; full
+        steps allowed (near the central path the boundary rarely limits
+        them). Two directions, as a predictor-corrector step."""
+        x, r, s, z = state
+        _, _, _, _, _, pc = pieces(x, r, s, z, wts)
+        lin = _factor(ctx, plan, pc)
+        centre = tuple(_msk(opts.mu * w * jnp.ones_like(v), o) for v, w, o in zip(s, wts, ons))
+
+        def phase(target, _):
+            out = direction(x, r, s, z, target, lin, cap=2.0)
+            _, _, ds1, dz1, st1 = out
+            a = jnp.minimum(st1, 1.0)
+            nxt = tuple(t + _msk(opts.mu * w - (sv + a * dsv) * (zv + a * dzv), o)
+                        for t, sv, dsv, zv, dzv, w, o in zip(target, s, ds1, z, dz1, wts, ons))
+            return nxt, out
+
+        _, outs = jax.lax.scan(phase, centre, None, length=2)
+        # the corrected direction where it goes at least as far
+        first, second = (jax.tree_util.tree_map(lambda v: v[i], outs) for i in (0, 1))
+        better = jnp.minimum(second[4], 1.0) >= jnp.minimum(first[4], 1.0)
+        dx, dr, ds, dz, step = jax.tree_util.tree_map(lambda a, b: jnp.where(better, a, b), second, first)
+        return take(state, dx, dr, ds, dz, jnp.minimum(1.0, 0.99 * step), mean_gap(s, z)), jnp.asarray(False)
 
     def step_once(state):
         x, r, s, z = state
@@ -504,12 +538,16 @@ def _ipm(ctx: SoftContext, opts: BarrierOptions):
             final = tau <= opts.mu
             nxt = tuple(tau * w - jnp.where(final, 0.0, _msk(dsv * dzv, o))
                         for w, dsv, dzv, o in zip(wts, ds_a, dz_a, ons))
-            return nxt, out
+            return nxt, (out, final)
 
         zero = tuple(jnp.zeros_like(v) for v in s)
-        _, outs = jax.lax.scan(phase, zero, None, length=2)
+        _, (outs, final) = jax.lax.scan(phase, zero, None, length=2)
         dx, dr, ds, dz, step = jax.tree_util.tree_map(lambda a: a[1], outs)
-        step = jnp.minimum(1.0, 0.99 * step)
+        # final[0]: the predictor's target is mu itself (this step centres)
+        return take(state, dx, dr, ds, dz, jnp.minimum(1.0, 0.99 * step), mu), final[0]
+
+    def take(state, dx, dr, ds, dz, step, mu):
+        x, r, s, z = state
         # safeguard: a step that multiplies the complementarity gap (rounding
         # in a near-singular system, e.g. contacts between absent bricks) is
         # shortened, by 4x at a time, until the gap at most doubles
@@ -519,7 +557,9 @@ def _ipm(ctx: SoftContext, opts: BarrierOptions):
             step = jnp.where(grows(step), 0.25 * step, step)
         return _axpy(step, dx, x), r + step * dr, _axpy(step, ds, s), _axpy(step, dz, z)
 
-    (x, r, s, z), _ = iterate(step, _start(ctx, wts), opts.iters)
+    state, it = iterate(step, _start(ctx, wts), opts.iters)
+    (x, r, s, z), _ = iterate(functools.partial(step, centre=True), state, opts.iters - it,
+                              done=centred(*state[2:]))
     # optimality residuals with the actual duals: stationarity (z in place of
     # the barrier multipliers), primal feasibility, centrality; and the
     # residual rows' price and curvature for the backward pass
