@@ -558,6 +558,8 @@ def _ipm(ctx: SoftContext, opts: BarrierOptions):
         return _axpy(step, dx, x), r + step * dr, _axpy(step, ds, s), _axpy(step, dz, z)
 
     state, it = iterate(step, _start(ctx, wts), opts.iters)
+    # (after a breakdown in the first loop the second starts from the kept
+    # iterate; its own guard ends it at the next breakdown)
     (x, r, s, z), _ = iterate(functools.partial(step, centre=True), state, opts.iters - it,
                               done=centred(*state[2:]))
     # optimality residuals with the actual duals: stationarity (z in place of
