@@ -42,19 +42,3 @@ def test_iterate_stops_when_told_keeps_the_last_state_on_a_breakdown_and_vmaps()
                            )(jnp.asarray([5.0, 0.9, 40.0]))
         np.testing.assert_array_equal(np.asarray(xs["v"]), [0.625, 0.45, 0.625])
         np.testing.assert_array_equal(np.asarray(its), [3, 1, 6])
-
-
-def test_iterate_takes_no_step_from_a_state_already_done():
-    def step(x):
-        return x / 2, x / 2 < 1.0, False
-
-    with jax.enable_x64(True):
-        x, it = iterate(step, jnp.asarray(0.5), 100, done=jnp.asarray(True))
-        assert (float(x), int(it)) == (0.5, 0)
-        # a second loop after a first, as the soft interior point's centring loop: the budget is shared
-        x, it = iterate(step, jnp.asarray(40.0), 3)
-        x, it2 = iterate(step, x, 3 - it, done=x < 1.0)
-        assert (float(x), int(it), int(it2)) == (5.0, 3, 0)
-        xs, its = jax.vmap(lambda v: iterate(step, v, 100, done=v < 1.0))(jnp.asarray([0.5, 4.0]))
-        np.testing.assert_array_equal(np.asarray(xs), [0.5, 0.5])
-        np.testing.assert_array_equal(np.asarray(its), [0, 3])

@@ -20,9 +20,8 @@ import jax.numpy as jnp
 __all__ = ["iterate", "boundary_step", "centring"]
 
 
-def iterate(step: Callable, state, max_iter, done=False):
-    """Run ``step`` from ``state`` until it stops: at most ``max_iter`` times
-    (none when ``done``, a bool scalar: the state is already an answer).
+def iterate(step: Callable, state, max_iter: int):
+    """Run ``step`` from ``state`` until it stops: at most ``max_iter`` times.
 
     ``step(state) -> (new, stop, keep)``: ``stop`` (bool scalar): ``new`` is
     the answer; ``keep`` (bool scalar): the step broke down (non-finite
@@ -39,7 +38,7 @@ def iterate(step: Callable, state, max_iter, done=False):
         return out, stop | keep, it + 1
 
     state, _, it = jax.lax.while_loop(lambda c: (~c[1]) & (c[2] < max_iter), body,
-                                      (state, jnp.asarray(done), jnp.asarray(0)))
+                                      (state, jnp.asarray(False), jnp.asarray(0)))
     return state, it
 
 

@@ -61,8 +61,8 @@ class BarrierOptions:
 
     mu: barrier parameter at which forces are returned and differentiated
       (-> 0 gives Eq. 9's LP).
-    iters: most interior-point iterations (two ``while_loop``s, the
-      second centring with a second-order corrector: it stops once
+    iters: most interior-point iterations (a ``while_loop``, its last
+      steps centring with a second-order corrector: it stops once
       mean(s z / w) <= 1.5 mu and every s z / w is within a factor
       ``centred`` of mu; under ``vmap`` when every problem has stopped).
     knob_cost: gamma, the cost (per T) of knob presses.
@@ -402,13 +402,12 @@ def _ipm(ctx: SoftContext, opts: BarrierOptions):
     kept: fraction 0.99 to the boundary, no line search).
 
     The barrier of inequality kind k is weighted by w_k (:func:`_weights`);
-    each iteration targets ``tau = max(mu, sigma mean(s z / w))``. At the
-    first step whose target is ``mu`` itself (a pure centring step) a
-    second loop takes over: centring steps with a second-order corrector
-    (``centre_once``) towards the point of the central path at ``mu``,
-    which is returned (with the residual rows' price and curvature there,
-    for the backward pass, and the optimality residual). Both loops
-    together take at most ``opts.iters`` steps."""
+    each iteration targets ``tau = max(mu, sigma mean(s z / w))``. After
+    the first step whose target is ``mu`` itself (a pure centring step)
+    the steps are centring steps with a second-order corrector
+    (``step_once``) towards the point of the central path at ``mu``, which
+    is returned (with the residual rows' price and curvature there, for
+    the backward pass, and the optimality residual)."""
     dtype = ctx.g.dtype
     n = ctx.g.shape[0]
     ons = _masks(ctx)
@@ -481,68 +480,56 @@ def _ipm(ctx: SoftContext, opts: BarrierOptions):
     def centred(s, z):
         return (mean_gap(s, z) <= 1.5 * opts.mu) & (centrality(s, z, opts.mu) <= opts.centred)
 
-    def step(state, centre=False):
-        new, final = (centre_once if centre else step_once)(state)
+    def step(loop):
+        state, centring_now = loop
+        new, final = step_once(state, centring_now)
         # stop once centred on the final barrier parameter: further centring
         # steps only stir rounding errors around
         ok = centred(*new[2:])
         # guard: near the end a step that loses primal feasibility (rounding
         # in a near-singular system) is refused and the iterate kept
         bad = (primal(new) > jnp.maximum(1e-6, 10.0 * primal(state))) & (mean_gap(*state[2:]) < 1e-3)
-        # the first loop hands over to the second at its first step towards mu itself
-        return new, ok | final, bad
+        return (new, centring_now | final), ok, bad
 
-    def centre_once(state):
-        """A step of the second loop, towards the central point at mu: the
-        centring direction, then the same with the error of the
-        complementarity products at its step taken off its target (a
-        second-order corrector), kept where it goes at least as far; full
-        steps allowed (near the central path the boundary rarely limits
-        them). Two directions, as a predictor-corrector step."""
-        x, r, s, z = state
-        _, _, _, _, _, pc = pieces(x, r, s, z, wts)
-        lin = _factor(ctx, plan, pc)
-        centre = tuple(_msk(opts.mu * w * jnp.ones_like(v), o) for v, w, o in zip(s, wts, ons))
-
-        def phase(target, _):
-            out = direction(x, r, s, z, target, lin, cap=2.0)
-            _, _, ds1, dz1, st1 = out
-            a = jnp.minimum(st1, 1.0)
-            nxt = tuple(t + _msk(opts.mu * w - (sv + a * dsv) * (zv + a * dzv), o)
-                        for t, sv, dsv, zv, dzv, w, o in zip(target, s, ds1, z, dz1, wts, ons))
-            return nxt, out
-
-        _, outs = jax.lax.scan(phase, centre, None, length=2)
-        # the corrected direction where it goes at least as far
-        first, second = (jax.tree_util.tree_map(lambda v: v[i], outs) for i in (0, 1))
-        better = jnp.minimum(second[4], 1.0) >= jnp.minimum(first[4], 1.0)
-        dx, dr, ds, dz, step = jax.tree_util.tree_map(lambda a, b: jnp.where(better, a, b), second, first)
-        return take(state, dx, dr, ds, dz, jnp.minimum(1.0, 0.99 * step), mean_gap(s, z)), jnp.asarray(False)
-
-    def step_once(state):
+    def step_once(state, centring_now):
+        """One factorisation, two directions. Predictor-corrector (the
+        predictor: affine scaling, target 0; the corrector: centring towards
+        tau plus the second-order term, pure centring once the target is
+        mu itself, which returns ``final``) until a step has been final;
+        then (``centring_now``) centring steps: the centring direction, then
+        the same with the error of the complementarity products at its step
+        taken off its target (a second-order corrector), kept where it goes
+        at least as far, full steps allowed. One traced direction in a scan
+        of length 2; the mode is a per-problem flag (selects, no branch:
+        under ``vmap`` a batch runs one loop)."""
         x, r, s, z = state
         mu = mean_gap(s, z)
         # one factorisation per iteration (the matrix does not depend on the target)
         _, _, _, _, _, pc = pieces(x, r, s, z, wts)
         lin = _factor(ctx, plan, pc)
-        # predictor (affine scaling, target 0), then corrector (centring
-        # towards tau plus the second-order term; pure centring once the target
-        # is the final mu): one traced direction in a scan of length 2
+        cap = jnp.where(centring_now, 2.0, 1.0)
+
         def phase(target, _):
-            out = direction(x, r, s, z, target, lin)
-            _, _, ds_a, dz_a, st_a = out
-            st_a = jnp.minimum(st_a, 1.0)
-            mu_a = mean_gap(_axpy(st_a, ds_a, s), _axpy(st_a, dz_a, z))
-            sigma = centring(mu_a, mu)
-            tau = jnp.maximum(opts.mu, sigma * mu)
+            out = direction(x, r, s, z, target, lin, cap)
+            _, _, ds1, dz1, st1 = out
+            a = jnp.minimum(st1, 1.0)
+            mu_a = mean_gap(_axpy(a, ds1, s), _axpy(a, dz1, z))
+            tau = jnp.maximum(opts.mu, centring(mu_a, mu) * mu)
             final = tau <= opts.mu
-            nxt = tuple(tau * w - jnp.where(final, 0.0, _msk(dsv * dzv, o))
-                        for w, dsv, dzv, o in zip(wts, ds_a, dz_a, ons))
+            mehrotra = (tau * w - jnp.where(final, 0.0, _msk(dsv * dzv, o))
+                        for w, dsv, dzv, o in zip(wts, ds1, dz1, ons))
+            second = (t + _msk(opts.mu * w - (sv + a * dsv) * (zv + a * dzv), o)
+                      for t, sv, dsv, zv, dzv, w, o in zip(target, s, ds1, z, dz1, wts, ons))
+            nxt = tuple(jnp.where(centring_now, c, m) for c, m in zip(second, mehrotra))
             return nxt, (out, final)
 
-        zero = tuple(jnp.zeros_like(v) for v in s)
-        _, (outs, final) = jax.lax.scan(phase, zero, None, length=2)
-        dx, dr, ds, dz, step = jax.tree_util.tree_map(lambda a: a[1], outs)
+        start = tuple(jnp.where(centring_now, _msk(opts.mu * w, o), 0.0) * jnp.ones_like(v)
+                      for v, w, o in zip(s, wts, ons))
+        _, (outs, final) = jax.lax.scan(phase, start, None, length=2)
+        first, second = (jax.tree_util.tree_map(lambda v: v[i], outs) for i in (0, 1))
+        # the corrector's direction; a centring step keeps the plain one where it goes further
+        better = ~centring_now | (jnp.minimum(second[4], 1.0) >= jnp.minimum(first[4], 1.0))
+        dx, dr, ds, dz, step = jax.tree_util.tree_map(lambda u, v: jnp.where(better, u, v), second, first)
         # final[0]: the predictor's target is mu itself (this step centres)
         return take(state, dx, dr, ds, dz, jnp.minimum(1.0, 0.99 * step), mu), final[0]
 
@@ -557,11 +544,7 @@ def _ipm(ctx: SoftContext, opts: BarrierOptions):
             step = jnp.where(grows(step), 0.25 * step, step)
         return _axpy(step, dx, x), r + step * dr, _axpy(step, ds, s), _axpy(step, dz, z)
 
-    state, it = iterate(step, _start(ctx, wts), opts.iters)
-    # (after a breakdown in the first loop the second starts from the kept
-    # iterate; its own guard ends it at the next breakdown)
-    (x, r, s, z), _ = iterate(functools.partial(step, centre=True), state, opts.iters - it,
-                              done=centred(*state[2:]))
+    ((x, r, s, z), _), _ = iterate(step, (_start(ctx, wts), jnp.asarray(False)), opts.iters)
     # optimality residuals with the actual duals: stationarity (z in place of
     # the barrier multipliers), primal feasibility, centrality; and the
     # residual rows' price and curvature for the backward pass
