@@ -433,7 +433,7 @@ def _ipm(ctx: SoftContext, opts: BarrierOptions):
         rr, pc = _system(x, ctx, dpsi, ddpsi, zeta[:4], h[:4], opts)
         return rp, h, R_r, dpsi, rr, pc
 
-    def direction(x, r, s, z, target, lin, cap=1.0):
+    def direction(x, r, s, z, target, lin, cap):
         rp, h, _, dpsi, rr, _ = pieces(x, r, s, z, target)
         (dS, dD, dt), y, d2 = _solve(ctx, plan, lin, rr)
         dx = (-dS, -dD, -dt)
@@ -477,15 +477,13 @@ def _ipm(ctx: SoftContext, opts: BarrierOptions):
         return jnp.max(jnp.stack([jnp.abs(_msk(sv * zv / (w * tau) - 1.0, o)).max()
                                   for sv, zv, o, w in zip(s, z, ons, wts)]))
 
-    def centred(s, z):
-        return (mean_gap(s, z) <= 1.5 * opts.mu) & (centrality(s, z, opts.mu) <= opts.centred)
-
     def step(loop):
         state, centring_now = loop
         new, final = step_once(state, centring_now)
         # stop once centred on the final barrier parameter: further centring
         # steps only stir rounding errors around
-        ok = centred(*new[2:])
+        _, _, s, z = new
+        ok = (mean_gap(s, z) <= 1.5 * opts.mu) & (centrality(s, z, opts.mu) <= opts.centred)
         # guard: near the end a step that loses primal feasibility (rounding
         # in a near-singular system) is refused and the iterate kept
         bad = (primal(new) > jnp.maximum(1e-6, 10.0 * primal(state))) & (mean_gap(*state[2:]) < 1e-3)
@@ -530,11 +528,7 @@ def _ipm(ctx: SoftContext, opts: BarrierOptions):
         # the corrector's direction; a centring step keeps the plain one where it goes further
         better = ~centring_now | (jnp.minimum(second[4], 1.0) >= jnp.minimum(first[4], 1.0))
         dx, dr, ds, dz, step = jax.tree_util.tree_map(lambda u, v: jnp.where(better, u, v), second, first)
-        # final[0]: the predictor's target is mu itself (this step centres)
-        return take(state, dx, dr, ds, dz, jnp.minimum(1.0, 0.99 * step), mu), final[0]
-
-    def take(state, dx, dr, ds, dz, step, mu):
-        x, r, s, z = state
+        step = jnp.minimum(1.0, 0.99 * step)
         # safeguard: a step that multiplies the complementarity gap (rounding
         # in a near-singular system, e.g. contacts between absent bricks) is
         # shortened, by 4x at a time, until the gap at most doubles
@@ -542,7 +536,8 @@ def _ipm(ctx: SoftContext, opts: BarrierOptions):
             return mean_gap(_axpy(st, ds, s), _axpy(st, dz, z)) > 2.0 * jnp.maximum(mu, opts.mu)
         for _ in range(6):
             step = jnp.where(grows(step), 0.25 * step, step)
-        return _axpy(step, dx, x), r + step * dr, _axpy(step, ds, s), _axpy(step, dz, z)
+        # final[0]: the predictor's target is mu itself (this step centres)
+        return (_axpy(step, dx, x), r + step * dr, _axpy(step, ds, s), _axpy(step, dz, z)), final[0]
 
     ((x, r, s, z), _), _ = iterate(step, (_start(ctx, wts), jnp.asarray(False)), opts.iters)
     # optimality residuals with the actual duals: stationarity (z in place of
