@@ -195,6 +195,36 @@ def test_merge_plans_moves_small_buckets_when_cheaper_than_a_compile():
     assert len(sizes[("dense", 32)]) == 100  # the caller's dict is untouched
 
 
+def test_merge_plans_joins_buckets_that_no_bucket_of_the_run_takes():
+    """Two buckets of one layout each, neither of which takes the other's
+    layout, are solved in the smallest bucket of the ladder that takes
+    both (one compile instead of two, paid for by padding); not when
+    padding their many layouts costs more than a compile, nor where a
+    bucket would be estimated faster there (then :func:`solve_plan` and
+    the time estimate disagree: no join for that)."""
+    from stablelego_jax.solvers.problem import COMPILE_S, merge_plans, plan_seconds
+
+    a, b, d = ("layered", 6, 24), ("layered", 8, 20), ("dense", 24)
+    sizes = {a: [(120, 5, 24)], b: [(120, 7, 17)], d: [(24, 4, 8)] * 300}
+    into = merge_plans(sizes)
+    j = into[a]
+    assert j == into[b] and j not in sizes and into[j] == j and into[d] == d
+    # the smallest dense bucket (120 bricks) or layered one (8 x 24) that takes both
+    assert j in (("dense", 120), ("layered", 8, 24))
+    assert 2 * plan_seconds(j) - plan_seconds(a) - plan_seconds(b) < COMPILE_S
+    assert plan_seconds(j) >= max(plan_seconds(a), plan_seconds(b))
+    assert merge_plans({a: sizes[a] * 200, b: sizes[b] * 200}) == {a: a, b: b}
+    assert merge_plans(sizes, compile_s=0.0) == {k: k for k in sizes}
+    # a third bucket that the joined one takes follows it
+    c = ("layered", 4, 16)
+    into = merge_plans({**sizes, c: [(56, 4, 12)]})
+    assert into[c] == into[a] == into[b]
+    # a bucket of the run with the joined key takes both
+    e = ("dense", 120)
+    into = merge_plans({a: sizes[a], b: sizes[b], e: [(120, 9, 30)] * 3})
+    assert into[a] == into[b] == into[e] == e
+
+
 def test_merge_plans_keeps_ready_buckets_and_counts_columns():
     """A bucket whose solver is compiled already saves only a load by moving,
     so it stays; padded columns make a bucket's layouts cost more, and a

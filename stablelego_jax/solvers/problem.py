@@ -797,7 +797,8 @@ def merge_plans(sizes: dict, compile_s: float = COMPILE_S, ready=frozenset(), m_
                 load_s: float = LOAD_S, pieces=None) -> dict:
     """Fewer compiled shapes for one run: ``sizes`` maps each bucket key
     (:func:`solve_plan`) to the (padded bricks, layers, slots per layer) of
-    its layouts; returns {key: key to solve it in}. A bucket moves into a
+    its layouts; returns {key: key to solve it in} (a joined key, below,
+    maps to itself). A bucket moves into a
     larger bucket of the same run (one its layouts fit in) when that lowers
     the run's estimated time: the padded layouts' solve time
     (:func:`plan_seconds`, with the buckets' padded columns ``m_pads``
@@ -809,7 +810,10 @@ def merge_plans(sizes: dict, compile_s: float = COMPILE_S, ready=frozenset(), m_
     buckets are cut into runs of consecutive sizes, each solved in its
     largest bucket, at the least estimated time (dynamic programming over
     the chain); then the other buckets move, the smallest first, each to
-    the cheapest target. A bucket in ``ready``
+    the cheapest target; then pairs of buckets that no bucket of the run
+    takes together join in the smallest bucket of the ladder that takes
+    both (a key not in ``sizes``: one compile instead of two), the pair
+    that saves the most first. A bucket in ``ready``
     (its solvers compiled already: in this process or on disk) costs only
     ``load_s`` per batch size it had. With ``compile_s`` = 0 and no
     bucket ready nothing moves."""
@@ -826,7 +830,7 @@ def merge_plans(sizes: dict, compile_s: float = COMPILE_S, ready=frozenset(), m_
     def cost(k, m, c):
         """Estimated seconds of bucket ``k`` with ``c`` layouts padded to ``m`` columns."""
         p = cut(k, m, c)
-        return sum(p) * plan_seconds(k, m) + sum(load_s if s in have[k] else compile_s for s in set(p))
+        return sum(p) * plan_seconds(k, m) + sum(load_s if s in have.get(k, ()) else compile_s for s in set(p))
 
     def move(k, t):
         for j in target:
@@ -870,7 +874,50 @@ def merge_plans(sizes: dict, compile_s: float = COMPILE_S, ready=frozenset(), m_
                 best, best_extra = t, extra
         if best is not None:
             move(k, best)
+
+    # then pairs that no bucket of the run takes together: both into the smallest bucket of the
+    # ladder that takes the layouts of both (:func:`_join_keys`; one compile instead of two, e.g.
+    # layered 6 x 24 and 8 x 20 in dense 120; a bucket of that key joins them), the join that
+    # saves the most first, until none saves
+    while compile_s > 0:
+        live = sorted((k for k in sizes if target[k] == k and k[0] != "slabs"), key=str)
+        best, best_extra = None, 0.0
+        for a, k in enumerate(live):
+            for t in live[a + 1:]:
+                for j in _join_keys(sizes[k] + sizes[t]):
+                    if j in sizes and target[j] != j:  # merged into another already
+                        continue
+                    group = list(dict.fromkeys([k, t] + ([j] if j in sizes else [])))
+                    m_j = max(m_pads[g] or 0 for g in group) or None
+                    c_j = sum(count[g] for g in group)
+                    extra = cost(j, m_j, c_j) - sum(cost(g, m_pads[g], count[g]) for g in group)
+                    # paid for by the compiles it saves: each bucket's layouts are padded, none
+                    # estimated faster there than where :func:`solve_plan` put them
+                    padded = all(plan_seconds(j, m_j) >= plan_seconds(g, m_pads[g]) for g in group)
+                    if padded and extra < best_extra:
+                        best, best_extra = (group, j, m_j), extra
+        if best is None:
+            break
+        group, j, m_j = best
+        if j not in sizes:
+            sizes[j], count[j], target[j], have[j] = [], 0, j, set()
+        m_pads[j] = m_j
+        for g in group:
+            if g != j:
+                move(g, j)
     return target
+
+
+def _join_keys(sizes: list) -> list:
+    """The smallest dense bucket and, where every layout has a layered
+    numbering, the smallest layered bucket of the ladder that take every
+    layout of ``sizes`` ((padded bricks, layers, slots per layer) each, as
+    :func:`merge_plans` gets them)."""
+    out = [("dense", max(s[0] for s in sizes))]
+    L, B = max(s[1] for s in sizes), max(s[2] for s in sizes)
+    if L < NOT_LAYERED:
+        out.append(("layered", *layer_bucket(L, B)))
+    return out
 
 
 def plan_problem(model: ForceModel, key: tuple, m_pad: int, p_pad: int,
