@@ -745,13 +745,14 @@ SINGLE_COMPILE_S = 2.0
 
 
 #: Seconds one compile of a batched interior-point solver takes on a CPU core,
-#: tracing and export included: 2.4-2.9 s a shape in ``score``'s pool on this
-#: 2-core CPU in session 33 (flat interior-point vectors and the CPU
-#: compiler options of :mod:`stablelego_jax.runtime`; 3.5-8.9 s before);
-#: and one load of a compiled solver from the disk cache (0.34-0.37 s per
-#: shape, session 21).
-COMPILE_S = 3.0
-LOAD_S = 0.4
+#: tracing and export included: in ``score``'s pool on this 2-core CPU,
+#: session 39, 1.4-1.8 s a dense shape and 2.6-2.8 s a layered one (2.4-2.9
+#: s in session 33; 3.5-8.9 s before the flat interior-point vectors and
+#: the CPU compiler options of :mod:`stablelego_jax.runtime`); and one load
+#: of a compiled solver from the disk cache (0.10-0.14 s a shape in the
+#: same runs; 0.34-0.37 s in session 21).
+COMPILE_S = 2.2
+LOAD_S = 0.15
 
 #: Columns per padded brick of a typical layout (dense buckets of the small set: 28-54).
 COLUMNS_PER_BRICK = 36
@@ -761,27 +762,34 @@ def plan_seconds(key: tuple, m_pad: int | None = None, iters: float | None = Non
     """Rough seconds one layout of bucket ``key`` with ``m_pad`` columns
     (default ``COLUMNS_PER_BRICK`` per padded brick) takes in the
     interior-point solve as batched on a CPU (:func:`~stablelego_jax.batch.batch_sizes`),
-    over ``iters`` iterations (default: 6.1 + 3.9 ln(padded bricks), the
-    mean count). Per iteration: 0.45 us per column (the weighted Gram and
-    the operators), and for ``k = 6 B`` rows of a factor block 7.3 ns k^2 +
-    11 ps k^3 dense (``B`` = the padded bricks), 14 ns k^2 + 208 ps k^3 per
-    layer layered (a Cholesky, a triangular solve and products per layer).
-    Fitted to warm solves of 50 buckets (the 500 small layouts and 150 of
-    the 1000-layout shard, unmerged, batched as ``score`` batches them, one
-    CPU core; session 32): per iteration within 30% on 45 of them (0.58-1.33x),
-    the iteration count within 25% on 39 (0.83-1.59x), per layout within
-    30% on 40 (0.51-2.11x); summed 55.8 s against 60.5 s measured."""
+    over ``iters`` iterations (default: 4.8 + 3.83 ln(padded bricks), the
+    mean count). Per iteration: 0.187 us per column (the weighted Gram and
+    the operators), and for ``k = 6 B`` rows of a factor block 30 us +
+    3.18 ns k^2 + 12.4 ps k^3 dense (``B`` = the padded bricks), 60 us and
+    per layer 9.5 us + 6.11 ns k^2 + 68.8 ps k^3 layered (a Cholesky, a
+    triangular solve and products per layer; the constants: an iteration's
+    ~170 small kernels). Fitted to warm solves of 50 buckets (the 500 small
+    layouts unmerged and merged, and 143 of the 1000-layout shard,
+    unmerged, batched as ``score`` batches them, one CPU core; session 39,
+    ``benchmarks/bucket_times.py``): per iteration within 15% on all 50
+    (0.80-1.15x, median 1.01); the iteration count within 0.89-1.42x
+    (session 32's model of the count, refitted to the same buckets). The
+    soft interior point's 2000-placement layered problem (20 x 120 slots,
+    262400 columns) is priced at 0.63 s an iteration, as measured (about
+    0.62 s). Session 32's fit (0.45 us a column; 7.3 ns k^2 + 11 ps k^3
+    dense, 14 ns k^2 + 208 ps k^3 a layer) priced today's solves 1.2-2.9x
+    too high, the small dense ones most."""
     if key[0] == "dense":
-        L, k, n_b = 1, 6 * key[1], key[1]
-        per_k = 7.3e-9 * k * k + 1.1e-11 * k ** 3
+        k, n_b = 6 * key[1], key[1]
+        per_k = 30.2e-6 + 3.18e-9 * k * k + 1.24e-11 * k ** 3
     else:
         L, k, n_b = key[1], 6 * key[2], key[1] * key[2]
-        per_k = L * (1.44e-8 * k * k + 2.08e-10 * k ** 3)
+        per_k = 60.0e-6 + L * (9.5e-6 + 6.11e-9 * k * k + 6.88e-11 * k ** 3)
     if m_pad is None:
         m_pad = COLUMNS_PER_BRICK * n_b
     if iters is None:
-        iters = 6.1 + 3.9 * np.log(max(n_b, 1))
-    return float(iters * (0.45e-6 * m_pad + per_k))
+        iters = 4.8 + 3.83 * np.log(max(n_b, 1))
+    return float(iters * (0.187e-6 * m_pad + per_k))
 
 
 def _fits(key: tuple, size: tuple) -> bool:
@@ -876,9 +884,10 @@ def merge_plans(sizes: dict, compile_s: float = COMPILE_S, ready=frozenset(), m_
             move(k, best)
 
     # then pairs that no bucket of the run takes together: both into the smallest bucket of the
-    # ladder that takes the layouts of both (:func:`_join_keys`; one compile instead of two, e.g.
-    # layered 6 x 24 and 8 x 20 in dense 120; a bucket of that key joins them), the join that
-    # saves the most first, until none saves
+    # ladder that takes the layouts of both (:func:`_join_keys`; one compile instead of two: on the
+    # small set, layered 6 x 24, 12 x 20 and 16 x 16 of one layout each and the dense 56 and 96
+    # buckets end in dense 152; a bucket of that key joins them), the join that saves the most
+    # first, until none saves
     while compile_s > 0:
         live = sorted((k for k in sizes if target[k] == k and k[0] != "slabs"), key=str)
         best, best_extra = None, 0.0
