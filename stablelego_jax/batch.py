@@ -46,7 +46,6 @@ from .solvers import admm, ipm
 from .solvers.compiled import STATS, available, compiled
 from .solvers.exact import estimated_seconds
 from .solvers.problem import (
-    COMPILE_S,
     LOAD_S,
     MIN_BRICKS,
     MIN_CHUNKS,
@@ -56,6 +55,7 @@ from .solvers.problem import (
     Solution,
     batch_rung,
     chunk_rows,
+    compile_seconds,
     layer_plan,
     merge_plans,
     plan_problem,
@@ -454,11 +454,10 @@ def auto_split(units: Sequence["SolveUnit"], ready=None, n_dev: int = 1,
     compiled yet (else a load from disk, ``LOAD_S``), against the sum of
     HiGHS' estimated times
     (:func:`~stablelego_jax.solvers.exact.estimated_seconds`). ``compile_s``
-    and ``speedup`` default to ``COMPILE_S`` and 1 on a CPU backend, to
-    :data:`ACCELERATOR_COMPILE_S` and :data:`ACCELERATOR_SPEEDUP` elsewhere."""
+    and ``speedup`` default to the bucket kind's
+    :func:`~stablelego_jax.solvers.problem.compile_seconds` and 1 on a CPU
+    backend, to :data:`ACCELERATOR_COMPILE_S` and :data:`ACCELERATOR_SPEEDUP` elsewhere."""
     cpu = jax.default_backend() == "cpu"
-    if compile_s is None:
-        compile_s = COMPILE_S if cpu else ACCELERATOR_COMPILE_S
     if speedup is None:
         speedup = 1.0 if cpu else ACCELERATOR_SPEEDUP
     groups: dict = {}
@@ -468,7 +467,8 @@ def auto_split(units: Sequence["SolveUnit"], ready=None, n_dev: int = 1,
     for (key, m_pad, p_pad, c_pad), us in groups.items():
         sizes = {batch_rung(len(u.items), n_dev, u.bsz) for u in us}
         warm = ready is not None and ready(key, m_pad, p_pad, c_pad, sizes, us[0].items[0][2])
-        jax_s = sum(u.seconds() for u in us) / speedup + (LOAD_S if warm else compile_s)
+        c = compile_s if compile_s is not None else compile_seconds(key) if cpu else ACCELERATOR_COMPILE_S
+        jax_s = sum(u.seconds() for u in us) / speedup + (LOAD_S if warm else c)
         exact_s = sum(estimated_seconds(it[2]) for u in us for it in u.items)
         if exact_s < jax_s:
             to_exact += [it for u in us for it in u.items]
@@ -678,10 +678,11 @@ def _unit_results(unit: SolveUnit, solver, params, opts, first_cap, fallback) ->
     return out, st
 
 
-def assign_units(units: Sequence[SolveUnit], jobs: int, compile_s: float = COMPILE_S, ready=None) -> list:
+def assign_units(units: Sequence[SolveUnit], jobs: int, compile_s: float | None = None, ready=None) -> list:
     """Worker index of each unit: longest first, each to the worker that
     would finish it soonest. The first worker to take a unit of a shape
-    pays ``compile_s`` for it, or ``LOAD_S`` where ``ready`` (see
+    pays ``compile_s`` for it (None: its kind's
+    :func:`~stablelego_jax.solvers.problem.compile_seconds`), or ``LOAD_S`` where ``ready`` (see
     :func:`solve_units`; one device per worker) says its executable is
     compiled already, on disk; any other worker that takes a unit of that
     shape pays ``LOAD_S``: it solves such units after its own shapes
@@ -693,7 +694,7 @@ def assign_units(units: Sequence[SolveUnit], jobs: int, compile_s: float = COMPI
     for u in _longest_first(units):
         un = units[u]
         key = un.shape
-        new = compile_s
+        new = compile_seconds(un.key) if compile_s is None else compile_s
         if any(key in sh for sh in shapes) or (ready is not None and ready(
                 *key, {batch_rung(len(un.items), 1, un.bsz)}, un.items[0][2])):
             new = LOAD_S

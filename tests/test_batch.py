@@ -394,17 +394,17 @@ def test_assign_units_charges_a_load_for_a_shape_on_disk():
 
     big = Timed(("layered", 16, 16), 512, 8, 11, [(0, None, None)])
     pieces = [Timed(("dense", 8), 64, 8, 2, [(k, None, None)]) for k in range(1, 8)]
-    # worker 1 compiles the pieces' shape (8 s) and solves 6 of them (20 s); worker 0
-    # (11 s compile and solve later) takes the 7th from disk: 11 + 8 + 2 + 0.4 < 20 + 2
-    cold = assign_units([big] + pieces, 2)
+    # a compile priced at 8 s: worker 1 compiles the pieces' shape and solves 6 of them (20 s);
+    # worker 0 (11 s of solve, 8 s of compile) takes the 7th from disk: 11 + 8 + 2 + 0.15 < 20 + 2
+    cold = assign_units([big] + pieces, 2, compile_s=8.0)
     assert cold == [0] + [1] * 6 + [0]
     asked = []
-    warm = assign_units([big] + pieces, 2, ready=lambda *a: asked.append(a[:4]) or True)
+    warm = assign_units([big] + pieces, 2, compile_s=8.0, ready=lambda *a: asked.append(a[:4]) or True)
     assert warm == [0] + [1] * 6 + [0]
     assert asked[0] == (("layered", 16, 16), 512, 8, None)
     # worker 0 solves the big unit first, then the piece worker 1 compiled
     units = pieces + [big]  # given order: the 7th piece before the big unit
-    where = assign_units(units, 2)
+    where = assign_units(units, 2, compile_s=8.0)
     order = worker_order(units, where)
     assert sorted(order) == list(range(len(units)))
     on0 = [units[u] for u in order if where[u] == 0]

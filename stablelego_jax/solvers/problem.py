@@ -21,6 +21,9 @@ __all__ = [
     "merge_plans",
     "plan_seconds",
     "COMPILE_S",
+    "DENSE_COMPILE_S",
+    "LAYERED_COMPILE_S",
+    "compile_seconds",
     "LOAD_S",
     "Problem",
     "Solution",
@@ -753,6 +756,15 @@ SINGLE_COMPILE_S = 2.0
 #: same runs; 0.34-0.37 s in session 21).
 COMPILE_S = 2.2
 LOAD_S = 0.15
+#: The same by kind (the layered program's scans over layers compile to more kernels).
+DENSE_COMPILE_S = 1.7
+LAYERED_COMPILE_S = 2.7
+
+
+def compile_seconds(key: tuple) -> float:
+    """Seconds one compile of bucket ``key``'s batched solver takes on a CPU
+    core (:data:`DENSE_COMPILE_S` or, layered and slabs, :data:`LAYERED_COMPILE_S`)."""
+    return DENSE_COMPILE_S if key[0] == "dense" else LAYERED_COMPILE_S
 
 #: Columns per padded brick of a typical layout (dense buckets of the small set: 28-54).
 COLUMNS_PER_BRICK = 36
@@ -801,7 +813,7 @@ def _fits(key: tuple, size: tuple) -> bool:
     return n_b <= key[1] if key[0] == "dense" else (L <= key[1] and B <= key[2])
 
 
-def merge_plans(sizes: dict, compile_s: float = COMPILE_S, ready=frozenset(), m_pads=None,
+def merge_plans(sizes: dict, compile_s: float | None = None, ready=frozenset(), m_pads=None,
                 load_s: float = LOAD_S, pieces=None) -> dict:
     """Fewer compiled shapes for one run: ``sizes`` maps each bucket key
     (:func:`solve_plan`) to the (padded bricks, layers, slots per layer) of
@@ -811,7 +823,7 @@ def merge_plans(sizes: dict, compile_s: float = COMPILE_S, ready=frozenset(), m_
     the run's estimated time: the padded layouts' solve time
     (:func:`plan_seconds`, with the buckets' padded columns ``m_pads``
     {key: m_pad} when given) plus ``compile_s`` per distinct batch size
-    compiled. ``pieces(key, m_pad, count) -> [padded batch size of each
+    compiled (None: :func:`compile_seconds` of each bucket's kind). ``pieces(key, m_pad, count) -> [padded batch size of each
     piece]`` says how a bucket of ``count`` layouts is cut into batches
     (default: one unpadded batch), so that a merge which pads a batch to
     the next power of two, or adds a batch size, pays for it. The dense
@@ -838,7 +850,8 @@ def merge_plans(sizes: dict, compile_s: float = COMPILE_S, ready=frozenset(), m_
     def cost(k, m, c):
         """Estimated seconds of bucket ``k`` with ``c`` layouts padded to ``m`` columns."""
         p = cut(k, m, c)
-        return sum(p) * plan_seconds(k, m) + sum(load_s if s in have.get(k, ()) else compile_s for s in set(p))
+        c = compile_seconds(k) if compile_s is None else compile_s
+        return sum(p) * plan_seconds(k, m) + sum(load_s if s in have.get(k, ()) else c for s in set(p))
 
     def move(k, t):
         for j in target:
@@ -888,7 +901,7 @@ def merge_plans(sizes: dict, compile_s: float = COMPILE_S, ready=frozenset(), m_
     # small set, layered 6 x 24, 12 x 20 and 16 x 16 of one layout each and the dense 56 and 96
     # buckets end in dense 152; a bucket of that key joins them), the join that saves the most
     # first, until none saves
-    while compile_s > 0:
+    while compile_s is None or compile_s > 0:
         live = sorted((k for k in sizes if target[k] == k and k[0] != "slabs"), key=str)
         best, best_extra = None, 0.0
         for a, k in enumerate(live):
