@@ -220,6 +220,12 @@ def test_merge_plans_joins_buckets_that_no_bucket_of_the_run_takes():
     c = ("layered", 4, 16)
     into = merge_plans({**sizes, c: [(56, 4, 12)]})
     assert into[c] == into[a] == into[b]
+    # a joined key whose solver is compiled already costs a load: 60 layouts each pay for that
+    many = {a: sizes[a] * 60, b: sizes[b] * 60}
+    lj = ("layered", 8, 24)  # the smallest layered bucket that takes both
+    assert merge_plans(many) == {a: a, b: b}
+    into = merge_plans(many, ready={lj})
+    assert into[a] == into[b] == lj
     # a bucket of the run with the joined key takes both
     e = ("dense", 120)
     into = merge_plans({a: sizes[a], b: sizes[b], e: [(120, 9, 30)] * 3})

@@ -851,7 +851,8 @@ def merge_plans(sizes: dict, compile_s: float | None = None, ready=frozenset(), 
         """Estimated seconds of bucket ``k`` with ``c`` layouts padded to ``m`` columns."""
         p = cut(k, m, c)
         c = compile_seconds(k) if compile_s is None else compile_s
-        return sum(p) * plan_seconds(k, m) + sum(load_s if s in have.get(k, ()) else c for s in set(p))
+        done = have[k] if k in have else set(p) if k in ready else ()  # a joined key may be ready too
+        return sum(p) * plan_seconds(k, m) + sum(load_s if s in done else c for s in set(p))
 
     def move(k, t):
         for j in target:
@@ -922,7 +923,8 @@ def merge_plans(sizes: dict, compile_s: float | None = None, ready=frozenset(), 
             break
         group, j, m_j = best
         if j not in sizes:
-            sizes[j], count[j], target[j], have[j] = [], 0, j, set()
+            sizes[j], count[j], target[j] = [], 0, j
+            have[j] = set(cut(j, m_j, sum(count[g] for g in group))) if j in ready else set()
         m_pads[j] = m_j
         for g in group:
             if g != j:
