@@ -20,7 +20,6 @@ from ..soft import ScenePositions, SoftProblem
 __all__ = [
     "merge_plans",
     "plan_seconds",
-    "COMPILE_S",
     "DENSE_COMPILE_S",
     "LAYERED_COMPILE_S",
     "compile_seconds",
@@ -748,17 +747,16 @@ SINGLE_COMPILE_S = 2.0
 
 
 #: Seconds one compile of a batched interior-point solver takes on a CPU core,
-#: tracing and export included: in ``score``'s pool on this 2-core CPU,
+#: tracing and export included, by kind (the layered program's scans over
+#: layers compile to more kernels): in ``score``'s pool on this 2-core CPU,
 #: session 39, 1.4-1.8 s a dense shape and 2.6-2.8 s a layered one (2.4-2.9
-#: s in session 33; 3.5-8.9 s before the flat interior-point vectors and
-#: the CPU compiler options of :mod:`stablelego_jax.runtime`); and one load
-#: of a compiled solver from the disk cache (0.10-0.14 s a shape in the
-#: same runs; 0.34-0.37 s in session 21).
-COMPILE_S = 2.2
-LOAD_S = 0.15
-#: The same by kind (the layered program's scans over layers compile to more kernels).
+#: s either in session 33; 3.5-8.9 s before the flat interior-point vectors
+#: and the CPU compiler options of :mod:`stablelego_jax.runtime`); and one
+#: load of a compiled solver from the disk cache (0.10-0.14 s a shape in
+#: the same runs; 0.34-0.37 s in session 21).
 DENSE_COMPILE_S = 1.7
 LAYERED_COMPILE_S = 2.7
+LOAD_S = 0.15
 
 
 def compile_seconds(key: tuple) -> float:
@@ -850,9 +848,9 @@ def merge_plans(sizes: dict, compile_s: float | None = None, ready=frozenset(), 
     def cost(k, m, c):
         """Estimated seconds of bucket ``k`` with ``c`` layouts padded to ``m`` columns."""
         p = cut(k, m, c)
-        c = compile_seconds(k) if compile_s is None else compile_s
+        new = compile_seconds(k) if compile_s is None else compile_s
         done = have[k] if k in have else set(p) if k in ready else ()  # a joined key may be ready too
-        return sum(p) * plan_seconds(k, m) + sum(load_s if s in done else c for s in set(p))
+        return sum(p) * plan_seconds(k, m) + sum(load_s if s in done else new for s in set(p))
 
     def move(k, t):
         for j in target:
@@ -922,9 +920,8 @@ def merge_plans(sizes: dict, compile_s: float | None = None, ready=frozenset(), 
         if best is None:
             break
         group, j, m_j = best
-        if j not in sizes:
+        if j not in sizes:  # its cost reads ``ready`` itself
             sizes[j], count[j], target[j] = [], 0, j
-            have[j] = set(cut(j, m_j, sum(count[g] for g in group))) if j in ready else set()
         m_pads[j] = m_j
         for g in group:
             if g != j:
