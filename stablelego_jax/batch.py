@@ -243,7 +243,8 @@ def batch_solver_fn(params: Params, opts, n_dev: int):
     share one executable (``opts.max_iter`` is not used). The interior
     point of one dense problem (on each device) runs without ``vmap``: the
     same numbers from a smaller program, compiled in 25-45% less time on
-    this CPU at the same solve time; layered problems stay batched
+    this CPU at the same solve time, which factors only its real bricks'
+    rows (:attr:`~stablelego_jax.solvers.ipm.IPMOptions.cut`); layered problems stay batched
     (unbatched, their block solves ran 10-25% slower; BENCHMARKS.md,
     session 33)."""
     if isinstance(opts, ipm.IPMOptions):
@@ -251,7 +252,8 @@ def batch_solver_fn(params: Params, opts, n_dev: int):
         def f(*arrays):
             layers = Problem(*arrays).layers  # (batch, L) or None
             if arrays[0].shape[0] == 1 and (layers is None or layers.shape[-1] == 1):
-                return tuple(x[None] for x in ipm.solve(Problem(*(a[0] for a in arrays)), params, opts))
+                one = dataclasses.replace(opts, cut=True)  # alone: factor only the real bricks' rows
+                return tuple(x[None] for x in ipm.solve(Problem(*(a[0] for a in arrays)), params, one))
             return tuple(jax.vmap(lambda *a: ipm.solve(Problem(*a), params, opts))(*arrays))
     else:
 

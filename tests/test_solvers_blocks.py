@@ -4,7 +4,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from stablelego_jax.solvers.blocks import PIECE, block_cholesky, block_solve, lower_gram, lower_solve
+from stablelego_jax.solvers.blocks import PIECE, block_cholesky, block_solve, cut_cholesky, lower_gram, lower_solve
 
 pytestmark = pytest.mark.usefixtures("x64")
 
@@ -61,3 +61,23 @@ def test_lower_solve_is_the_triangular_solve(k, r):
     sub = np.asarray(jax.scipy.linalg.solve_triangular(jnp.asarray(C), jnp.asarray(R), lower=True))
     err = lambda Y: (np.abs(C @ Y - R) / (np.abs(C) @ np.abs(Y) + np.abs(R))).max()  # noqa: E731
     assert err(sub) < 1e-14 and err(got) < 1e-14
+
+
+@pytest.mark.parametrize("live", [6, 150, 240, 300])
+def test_cut_cholesky_factors_the_leading_rows_as_the_full_factor_does(live):
+    """``D + P' P`` whose rows from ``live`` on are diagonal and decoupled
+    (padding bricks): the factor of the smallest cut holding ``live`` rows,
+    with the square root of the diagonal after it, is the full factor."""
+    rng = np.random.default_rng(1)
+    k, n = 300, 50
+    X = rng.normal(size=(k, k))
+    D = X @ X.T + k * np.eye(k)
+    D[live:, :] = 0.0
+    D[:, live:] = 0.0
+    D[np.arange(live, k), np.arange(live, k)] = rng.uniform(1.0, 3.0, size=k - live)
+    P = rng.normal(size=(n, k))
+    P[-(-live // 6):, :] = 0.0  # the padding bricks' rows
+    P[:, live:] = 0.0
+    C, G = jax.jit(cut_cholesky, static_argnums=3)(jnp.asarray(D)[None], jnp.asarray(P), live, (120, 240, 300))
+    np.testing.assert_allclose(np.asarray(C[0]), np.linalg.cholesky(D + P.T @ P), rtol=1e-10, atol=1e-10)
+    assert C.shape == (1, k, k) and not np.asarray(G).any()

@@ -9,7 +9,7 @@ from conftest import EXAMPLES, SHARED_REF, hanging_scene, needs_shared
 
 from stablelego_jax.analysis import analyze_layout, make_analysis
 from stablelego_jax.formats.reader import load_layout
-from stablelego_jax.generate.procedural import lever, stairs, tower
+from stablelego_jax.generate.procedural import cuboid, lever, pyramid, stairs, tower
 from stablelego_jax.model import compile_layout
 from stablelego_jax.score import residual
 from stablelego_jax.solvers import ipm
@@ -127,6 +127,20 @@ def test_vmap_batch_equals_single_solves():
         one = single(p)
         assert bool(batch.converged[i])
         np.testing.assert_allclose(np.asarray(batch.objective[i]), np.asarray(one.objective), rtol=1e-9, atol=1e-12)
+
+
+@pytest.mark.parametrize("make", [lambda: cuboid(4, 4, 3), lambda: pyramid(4)])
+def test_a_dense_problem_alone_factors_its_real_bricks_only_with_the_same_answer(make):
+    """``cut``: 48 and 30 bricks padded to 120 factor 56 and 40 bricks'
+    rows; the iterates are the full factor's, to round-off."""
+    m = compile_layout(make()).pad(120, 1024, 32)
+    p = layered_problem(m, 1)
+    full = jax.jit(ipm.solve)(p)
+    cut = jax.jit(lambda p: ipm.solve(p, opts=ipm.IPMOptions(cut=True)))(p)
+    assert bool(full.converged) and bool(cut.converged)
+    assert int(cut.iters) == int(full.iters)
+    np.testing.assert_allclose(np.asarray(cut.f), np.asarray(full.f), rtol=1e-7, atol=1e-9)
+    np.testing.assert_allclose(float(cut.objective), float(full.objective), rtol=1e-9, atol=1e-12)
 
 
 def test_analyze_uses_interior_point_and_admm_on_request():

@@ -14,7 +14,7 @@ from stablelego_jax.formats.reader import load_layout
 from stablelego_jax.generate.procedural import cuboid, pyramid, stairs, tower
 from stablelego_jax.model import KNOB, NORMAL, compile_layout
 from stablelego_jax.soft import candidate_brick, compile_soft
-from stablelego_jax.solvers.problem import (
+from stablelego_jax.solvers.problem import (ladder, 
     CHUNK,
     MIN_CHUNKS,
     NOT_LAYERED,
@@ -51,6 +51,8 @@ def test_rung_ladder():
     assert [rung(k) for k in (1, 8, 9, 17, 41, 57)] == [8, 8, 16, 24, 56, 72]
     assert [rung(k, 64) for k in (1, 65, 81)] == [64, 80, 104]
     assert all(rung(v) == v for v in set(r))
+    assert ladder(120) == [8, 16, 24, 32, 40, 56, 72, 96, 120] and ladder(64) == [8, 16, 24, 32, 40, 56, 64]
+    assert all(rung(v) == v for v in ladder(2000)[:-1]) and ladder(8) == [8]
     assert layer_bucket(3, 5) == (4, 6) and layer_bucket(70, 130) == (80, 144)
     assert [batch_rung(k, 2, 64) for k in (1, 2, 3, 9, 200)] == [2, 2, 4, 16, 64]
     # small batches are padded to full: one compiled batch size, not 1, 2 and 4

@@ -20,7 +20,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-__all__ = ["block_cholesky", "block_solve", "lower_gram", "lower_solve"]
+__all__ = ["block_cholesky", "block_solve", "cut_cholesky", "lower_gram", "lower_solve"]
 
 #: rows of the diagonal pieces :func:`lower_solve` inverts (every block size
 #: ``6 B``, B a multiple of 8, is a multiple of it)
@@ -68,7 +68,9 @@ def block_cholesky(D, E):
     block's Cholesky reads its lower triangle only (:func:`lower_gram`
     forms no more of the Schur update)."""
     if D.shape[0] == 1:
-        return jnp.linalg.cholesky(D), jnp.zeros_like(D)
+        # the lower triangle as assembled (symmetric): symmetrising it was one more
+        # transposing pass over the matrix
+        return jax.lax.linalg.cholesky(D, symmetrize_input=False), jnp.zeros_like(D)
 
     def body(Gprev, inp):
         Dl, El = inp
@@ -78,6 +80,32 @@ def block_cholesky(D, E):
 
     _, (C, G) = jax.lax.scan(body, jnp.zeros_like(D[0]), (D, E))
     return C, G
+
+
+def cut_cholesky(D, P, live, cuts):
+    """:func:`block_cholesky` of one dense block ``M = D[0] + P' P`` (D (1,
+    k, k), P (n, k)) whose rows from ``live`` on (a traced count) are
+    decoupled and diagonal in D and empty in P (padding bricks after the
+    real ones): the product and the factor are formed for the smallest cut
+    of ``cuts`` (static sizes, ascending, the last ``k``) that holds
+    ``live`` rows, by ``lax.switch``, and the rest of the factor is the
+    square root of D's diagonal. A 57-brick layout padded to 120 bricks
+    factors 342 rows, not 720 ((120 / 57)^3 = 9x fewer flops). For an
+    unbatched solve only: under ``vmap`` every branch runs."""
+    k = D.shape[-1]
+    rest = jnp.sqrt(jnp.diagonal(D[0]))
+
+    def branch(c):
+        def f(D, P, rest):
+            Pc = P[: c // 6, :c]
+            Cc = jax.lax.linalg.cholesky(D[0, :c, :c] + (Pc.T @ Pc).T, symmetrize_input=False)
+            C = jnp.diag(jnp.where(jnp.arange(k) < c, 0.0, rest))
+            return C.at[:c, :c].set(Cc)
+        return f
+
+    i = jnp.searchsorted(jnp.asarray(cuts), live)
+    C = jax.lax.switch(jnp.minimum(i, len(cuts) - 1), [branch(c) for c in cuts], D, P, rest)
+    return C[None], jnp.zeros_like(D)
 
 
 def _tri(C, r, trans):

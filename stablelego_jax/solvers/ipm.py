@@ -42,9 +42,9 @@ import jax.numpy as jnp
 from ..model import NORMAL, SIDE, Params
 from ..runtime import x64
 from ..score import bottom_sum
-from .blocks import block_cholesky, block_solve
+from .blocks import block_cholesky, block_solve, cut_cholesky
 from .newton import reduced_matrix
-from .problem import Problem, Solution, make_solution, operators
+from .problem import Problem, Solution, ladder, make_solution, operators
 from .interior import boundary_step, centring, iterate
 
 __all__ = ["IPMOptions", "solve"]
@@ -77,7 +77,11 @@ class IPMOptions:
     the same iterations and the same distance to HiGHS, and 0 solves
     1.25-1.7x faster, BENCHMARKS.md). The cost includes the
     canonical term ``Params.ridge / (2 W) |x|^2`` (W: total weight), as the
-    exact solver's (``exact.least_norm``).
+    exact solver's (``exact.least_norm``). cut: a dense problem solved alone
+    (not under ``vmap``) factors only its real bricks' rows, at the
+    smallest size of the brick ladder from :data:`CUT_MIN` that holds them
+    (:func:`~stablelego_jax.solvers.blocks.cut_cholesky`); the numbers are
+    those of the full factor.
     """
 
     max_iter: int = 80
@@ -93,6 +97,12 @@ class IPMOptions:
     step: float = 0.99
     init: float = 1e-2
     dtype: str = "float64"
+    cut: bool = False
+
+
+#: Fewest bricks :attr:`IPMOptions.cut` factors: below, a smaller factor gained less than its
+#: branch cost (dense 40 on the small set, session 40).
+CUT_MIN = 40
 
 
 # ----------------------------------------------------------------- solver
@@ -136,6 +146,12 @@ def _system(prob: Problem, params: Params, opts: IPMOptions) -> dict:
     alpha, beta = params.alpha, params.beta
     # the canonical term on the forces: ridge / (total weight, in T) (see Params)
     reg = params.ridge / jnp.maximum(jnp.abs(g[:, 2]).sum(), 1e-30)
+
+    # one dense block solved alone: factor only the leading rows of the real bricks
+    # (padding bricks come last), at the smallest of the ladder's sizes that holds them
+    cut = opts.cut and L == 1 and prob.supports is None and n > CUT_MIN
+    live = 6 * jnp.max(jnp.where(prob.brick_mask, jnp.arange(1, n + 1), 0))
+    cuts = tuple(6 * r for r in ladder(n) if r >= CUT_MIN)  # ends with n
 
     # the blocks of M for any weights (static scatter plan; :mod:`.newton`)
     assemble = reduced_matrix(prob.col_brick, coef, (kind == NORMAL) & cmask, n, L, prob.chunks,
@@ -181,13 +197,20 @@ def _system(prob: Problem, params: Params, opts: IPMOptions) -> dict:
         e = (1.0 + W1 * W1 / (hx * a)) / hx
         q = W1 * W3 / (hx * a)
         dr = 1.0 / W6 + 1.0 / W7
-        Dm, Em = assemble(e, q, 1.0 / gam, dr)
         # static regularisation (relative to each pivot, plus a floor for rows no
         # column reaches, e.g. z torque of a 1x1 brick on one knob); its error in a
-        # direction is corrected by the next iterate (or by opts.refine steps)
-        dg = jax.vmap(jnp.diagonal)(Dm)
-        Dm = Dm + jax.vmap(jnp.diag)(opts.reg_rel * dg + opts.reg_abs * (1.0 + dg.max()))
-        C, Gf = block_cholesky(Dm, Em)
+        # direction is corrected by the next iterate (or by opts.refine steps),
+        # added on the diagonal in place (a full pass over a dense 720-row block was
+        # a tenth of its iteration)
+        i = jnp.arange(k6)
+        if cut:
+            Dm, Em, P = assemble(e, q, 1.0 / gam, dr, split=True)
+            dg = Dm[:, i, i] + (P * P).sum(0)
+        else:
+            Dm, Em = assemble(e, q, 1.0 / gam, dr)
+            dg = Dm[:, i, i]
+        Dm = Dm.at[:, i, i].add(opts.reg_rel * dg + opts.reg_abs * (1.0 + dg.max()))
+        C, Gf = cut_cholesky(Dm, P, live, cuts) if cut else block_cholesky(Dm, Em)
         return (Wt, hx, a, gam, C, Gf)
 
     def hinv(f, b):

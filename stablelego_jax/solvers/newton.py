@@ -60,7 +60,10 @@ def reduced_matrix(col_brick, coef, normal, n: int, L: int, chunks=None, support
 
     Returns ``assemble(e, q, rho, dr) -> (D, E)``, e and q (m,), rho (n,), dr
     (n * 6,): the (L, 6 B, 6 B) diagonal blocks and blocks below them of
-    M (the layout of :mod:`.blocks`)."""
+    M (the layout of :mod:`.blocks`). One block with no ``supports``:
+    ``assemble(..., split=True) -> (D, E, P)`` leaves the bricks' rank-one
+    terms out of D as their factor P ((n, 6 n), ``M = D + P' P``), for
+    :func:`~stablelego_jax.solvers.blocks.cut_cholesky`."""
     col_brick = jnp.minimum(jnp.asarray(col_brick), n)
     m = col_brick.shape[0]
     gram = gram_plan(col_brick, coef, n, L, chunks)
@@ -130,11 +133,15 @@ def reduced_matrix(col_brick, coef, normal, n: int, L: int, chunks=None, support
     s_row = jnp.concatenate([own_idx, jnp.where(real[:, 0], own_idx, n)])
     s_col = jnp.concatenate([6 * ob, 6 * lo])
 
-    def assemble(e, q, rho, dr):
+    def assemble(e, q, rho, dr, split=False):
         D, E = gram.blocks(e)
         qc = q[:, None] * c12
-        S = rows6(s_row, s_col, jnp.concatenate([qc[:, :6], qc[:, 6:]]))[None]
-        D = D + jnp.matmul(jnp.swapaxes(S * rho.reshape(1, n, 1), 1, 2), S)
-        return D + diag_blocks(dr), E
+        S = rows6(s_row, s_col, jnp.concatenate([qc[:, :6], qc[:, 6:]]))
+        if split:  # the rank-one terms left as a factor P (n, 6 n): M = D + P' P
+            return D + diag_blocks(dr), E, jnp.sqrt(rho)[:, None] * S
+        # S' diag(rho) S is symmetric: added as its transpose, which is the order the
+        # Cholesky (column-major) reads D in, so no pass reads the product across
+        SS = jnp.matmul(S.T * rho[None, :], S)
+        return D + SS.T[None] + diag_blocks(dr), E
 
     return assemble

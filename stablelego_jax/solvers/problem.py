@@ -29,6 +29,7 @@ __all__ = [
     "to_problem",
     "stack_problems",
     "rung",
+    "ladder",
     "batch_rung",
     "FULL_BATCH",
     "bucket_shape",
@@ -144,6 +145,16 @@ def rung(k: int, base: int = 8, growth: float = 1.25) -> int:
     while b < k:
         b = int(np.ceil(b * growth / 8.0) * 8)
     return b
+
+
+def ladder(k: int, base: int = 8) -> list[int]:
+    """The rungs of :func:`rung` from ``base`` below ``k``, then ``k``."""
+    out = []
+    b = rung(1, base)
+    while b < k:
+        out.append(b)
+        b = rung(b + 1, base)
+    return out + [int(k)]
 
 
 #: Smallest padded sizes (ladder bases) of bricks, columns and contact slots per brick.
@@ -1037,10 +1048,14 @@ class LayerGram(NamedTuple):
         if extra is not None:
             idx = jnp.concatenate([idx, extra[0].reshape(-1, 3)])
             win = jnp.concatenate([win, extra[1].reshape(-1, 6, 6)])
+        # one layer: no block below the diagonal, so no buffer for E (its windows
+        # fall past the end and are dropped): a dense 720-row problem's buffer is
+        # 4 MB, and zeroing the unused half took a third of its Gram's time
+        depth = 2 * L if L > 1 else 1
         buf = jax.lax.scatter_add(
-            jnp.zeros((2 * L, k, k), e.dtype), idx, win, _WINDOWS,
+            jnp.zeros((depth, k, k), e.dtype), idx, win, _WINDOWS,
             mode=jax.lax.GatherScatterMode.FILL_OR_DROP)
-        return buf[:L], buf[L:]
+        return (buf[:L], buf[L:]) if L > 1 else (buf, jnp.zeros_like(buf))
 
 
 # a (6, 6) window of a (2 L, k, k) buffer at (block, row, column)
