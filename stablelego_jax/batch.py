@@ -69,7 +69,7 @@ __all__ = ["find_layouts", "read_results", "ScoreStats", "iter_analyses", "analy
            "batch_solver_fn", "batch_sizes", "plan_bytes", "parse_shard", "in_shard", "cpu_cores",
            "RESULT_PREFIX", "SolveUnit", "solve_units", "compiled_ready", "assign_units", "POOL_MIN",
            "auto_split", "ACCELERATOR_SPEEDUP", "ACCELERATOR_COMPILE_S", "CPU_CACHE_BYTES", "DEVICE_CACHE_BYTES",
-           "worker_order", "Workers", "jax_pool_size", "exact_parts"]
+           "worker_order", "next_unit", "POOL_DEPTH", "Workers", "jax_pool_size", "exact_parts"]
 
 LAYOUT_EXTS = (".json", ".txt", ".ldr")
 # files that sit beside StableLego layouts but are not layouts
@@ -766,20 +766,68 @@ def _jax_pool(units, jobs, solver, params, opts, first_cap, fallback, st, ready=
     where = assign_units(units, jobs, ready=ready)
     own = Workers(jobs) if workers is None or len(workers.pools) < jobs else None
     pools = (own or workers).pools[:jobs]
-    futs = []
+    order = worker_order(units, where)
+    queues = [[u for u in order if where[u] == w] for w in range(jobs)]
+    have: list = [set() for _ in range(jobs)]  # shapes each worker holds
+    on_disk: set = set()  # shapes some worker has compiled (and written to the disk cache)
+    flying: dict = {}  # future -> (worker, unit)
+
+    def feed() -> None:
+        for w in range(jobs):
+            while sum(1 for v, _ in flying.values() if v == w) < POOL_DEPTH:
+                u = next_unit(queues, w, units, have[w], on_disk)
+                if u is None:
+                    break
+                fut = pools[w].submit(_unit_results, units[u], solver, params, opts, first_cap, fallback)
+                flying[fut] = (w, u)
+
     try:
-        for u in worker_order(units, where):
-            futs.append(pools[where[u]].submit(_unit_results, units[u], solver, params, opts, first_cap, fallback))
-        for fut in concurrent.futures.as_completed(futs):
-            out, wst = fut.result()
-            st.add_solver_counts(wst)
-            if out:
-                yield out
+        feed()
+        while flying:
+            done, _ = concurrent.futures.wait(list(flying), return_when=concurrent.futures.FIRST_COMPLETED)
+            for fut in done:
+                w, u = flying.pop(fut)
+                out, wst = fut.result()
+                have[w].add(units[u].shape)
+                on_disk.add(units[u].shape)
+                st.add_solver_counts(wst)
+                feed()  # before the parent writes: no worker waits on it
+                if out:
+                    yield out
     finally:
-        for fut in futs:
+        for fut in flying:
             fut.cancel()
         if own is not None:
             own.close()
+
+
+#: Units handed to a pool worker ahead of time (one running, one queued in its pool).
+POOL_DEPTH = 2
+
+
+def next_unit(queues: list, w: int, units: Sequence[SolveUnit], have: set, on_disk: set,
+              load_s: float = LOAD_S) -> int | None:
+    """The next unit for worker ``w`` (popped from ``queues``, each
+    worker's units in :func:`worker_order`): its own next one; once its
+    queue is empty, the last unit of the worker with the most estimated
+    seconds left (:meth:`SolveUnit.seconds`) among those of a shape ``w``
+    holds (``have``), else of a shape compiled already (``on_disk``: a load,
+    ``load_s``) where that worker has more than four loads' worth left.
+    Never a shape nobody has compiled: that is its first taker's
+    to compile. The static plan (:func:`assign_units`) ends with one worker
+    busy while another waits when its estimates miss (on the small set,
+    2.2 s of a 10 s first run); this evens the end out."""
+    if queues[w]:
+        return queues[w].pop(0)
+    left = {v: sum(units[u].seconds() for u in q) for v, q in enumerate(queues) if q and v != w}
+    for v in sorted(left, key=lambda v: -left[v]):
+        q = queues[v]
+        for ok in (lambda u: units[u].shape in have,
+                   lambda u: units[u].shape in on_disk and left[v] > 4 * load_s):
+            for j in range(len(q) - 1, 0, -1):  # never the victim's very next unit
+                if ok(q[j]):
+                    return q.pop(j)
+    return None
 
 
 def _exact_items(items, method, exact_method, exact_scale) -> list:
