@@ -18,6 +18,7 @@ line is dropped on the next run, which skips every file already present.
 """
 from __future__ import annotations
 
+import atexit
 import concurrent.futures
 import contextlib
 import dataclasses
@@ -754,6 +755,16 @@ def _ready_worker() -> None:
     jax.devices()
     use_persistent_cache()
     compiler_options()
+    atexit.register(_quick_exit)  # after JAX's own: runs first
+
+
+def _quick_exit() -> None:
+    """A worker's last act, once its pool has let it go (results sent, the
+    disk cache written as each compile ended): end the process without
+    tearing JAX's backend down, which took 0.5 s of a 10 s run's end."""
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(0)
 
 
 def _jax_pool(units, jobs, solver, params, opts, first_cap, fallback, st, ready=None, workers=None) -> Iterator[list]:
