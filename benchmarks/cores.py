@@ -28,7 +28,7 @@ Every JAX process has one XLA pool thread (``PJRT_NPROC=1``, set by the
 package on jaxlib 0.10: ``stablelego_jax.blas``); the flags of session 8's
 configurations (XLA's Eigen pool on or off) no longer change that.
 Each run is the real command line in a subprocess (``python -m
-stablelego_jax.cli.main score ...``) with its own cache folder
+stablelego_jax score ...``) with its own cache folder
 (``STABLELEGO_CACHE_DIR``), so run 1 compiles everything and run 2 reads
 the compiled solvers from disk. Wall time is measured around the
 process(es); solve and compile time are the command's own summary line;
@@ -101,7 +101,7 @@ def run_config(name: str, inputs: list, work: str, cache: str, run: int) -> dict
         if cfg.get("vertex"):
             cmd = [sys.executable, "-c", VERTEX, out, str(cfg["jobs"]), *inputs]
         else:
-            cmd = [sys.executable, "-m", "stablelego_jax.cli.main", "score", *inputs, "--out", out, "--quiet",
+            cmd = [sys.executable, "-m", "stablelego_jax", "score", *inputs, "--out", out, "--quiet",
                    "--solver", cfg["solver"]] + (["--jobs", str(cfg["jobs"])] if cfg["jobs"] else [])
             if cfg["solver"] in ("jax", "auto"):
                 cmd += ["--devices", cfg["devices"]]

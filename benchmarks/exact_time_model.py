@@ -34,7 +34,7 @@ def main(argv=None) -> int:
     ap.add_argument("--measure", nargs="+", metavar="FILE", help="score these with the exact solver first")
     a = ap.parse_args(argv)
     if a.measure:
-        subprocess.run([sys.executable, "-m", "stablelego_jax.cli.main", "score", *a.measure, "--solver", "exact",
+        subprocess.run([sys.executable, "-m", "stablelego_jax", "score", *a.measure, "--solver", "exact",
                         "--jobs", "1", "--out", a.results], cwd=ROOT, check=True)
     from scipy.optimize import least_squares
 

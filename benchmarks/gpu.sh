@@ -54,7 +54,7 @@ score() {
     ( while sleep 10; do say "  $name: $( [ -f "$out" ] && wc -l <"$out" || echo 0) lines"; done ) &
     local watch=$!
     local t0=$(date +%s.%N)
-    timeout "$limit" $PY -m stablelego_jax.cli.main score "$input" --out "$out" --quiet --solver "$solver" "$@" \
+    timeout "$limit" $PY -m stablelego_jax score "$input" --out "$out" --quiet --solver "$solver" "$@" \
         2>"$R/$name.err"
     local rc=$?
     kill $watch 2>/dev/null

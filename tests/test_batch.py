@@ -347,7 +347,7 @@ def test_two_shard_processes_split_a_folder(shard, tmp_path):
     inputs = [str(shard / "layouts"), str(shard / "dataset")]
     env = dict(os.environ, JAX_PLATFORMS="cpu")
     outs = [tmp_path / f"part{k}.jsonl" for k in range(2)]
-    procs = [subprocess.Popen([sys.executable, "-m", "stablelego_jax.cli.main", "score", *inputs, "--out", str(o),
+    procs = [subprocess.Popen([sys.executable, "-m", "stablelego_jax", "score", *inputs, "--out", str(o),
                                "--solver", "exact", "--quiet", "--shard", f"{k}/2"], env=env)
              for k, o in enumerate(outs)]
     assert [p.wait(timeout=300) for p in procs] == [0, 0]
