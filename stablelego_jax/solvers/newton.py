@@ -116,7 +116,6 @@ def reduced_matrix(col_brick, coef, normal, n: int, L: int, chunks=None, support
         eye = jnp.eye(B, dtype=dtype)[None, :, None, :, None]
 
         def assemble(e, q, rho, dr):
-            D, E = gram.blocks(e)
             o = own_parts(q)
             W = rows6(w_row, w_col, q[:, None] * c12[:, 6:]).reshape(L, B, k6)
             ro = (rho[:, None] * o).reshape(L, B, 6)
@@ -124,8 +123,9 @@ def reduced_matrix(col_brick, coef, normal, n: int, L: int, chunks=None, support
             P = ro[..., :, None] * o.reshape(L, B, 1, 6) + jax.vmap(jax.vmap(jnp.diag))(dr.reshape(L, B, 6))
             WW = jnp.matmul(jnp.swapaxes(W * rho.reshape(L, B, 1), 1, 2), W)
             OW = (ro[..., None] * W[:, :, None, :]).reshape(L, k6, k6)  # rows: owners' slots, columns: below
-            # level l + 1's terms land on level l: one pass over D and E (an update in place copied each)
-            return D + (P[:, :, :, None, :] * eye).reshape(L, k6, k6) + down(WW), E + down(OW)
+            # level l + 1's terms land on level l; the Gram's windows go into these in place
+            D0 = (P[:, :, :, None, :] * eye).reshape(L, k6, k6) + down(WW)
+            return gram.blocks(e, base=(D0, down(OW)))
 
         return assemble
 
