@@ -134,3 +134,31 @@ def test_end_process_does_not_wait_for_a_computation_in_flight(tmp_path):
     assert p.stdout == "printed\n"
     assert p.stderr.strip().splitlines()[-1] == "test: ended"
     assert os.listdir(out.parent) == []
+
+
+def test_a_finished_command_ends_quickly_with_its_status_and_all_its_output(tmp_path):
+    """The program (``python -m stablelego_jax``) ends without tearing JAX
+    down once a command is done (``end_done``): its exit status stays (0,
+    or 1 when an input failed), and every line reaches a reader that takes
+    its time."""
+    from stablelego_jax.generate.procedural import stairs
+    from stablelego_jax.formats.reader import write_layout
+
+    good = tmp_path / "stairs.json"
+    write_layout(stairs(5), str(good))
+    bad = tmp_path / "empty.json"
+    bad.write_text("{}")
+    cmd = [sys.executable, "-m", "stablelego_jax", "analyze", "--json", "--solver", "exact"]
+    env = dict(os.environ, PYTHONPATH=ROOT)
+    p = subprocess.Popen(cmd + [str(good)] * 40, stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env)
+    lines = []
+    for line in p.stdout:  # a slow reader: the pipe fills and the writer waits
+        lines.append(line)
+        if len(lines) == 1:
+            threading.Event().wait(1.5)
+    p.wait(timeout=120)
+    assert p.returncode == 0, p.stderr.read()
+    assert len(lines) == 40 and all(line.endswith(b"}\n") for line in lines)
+    r = subprocess.run(cmd + [str(good), str(bad)], capture_output=True, text=True, env=env, timeout=120)
+    out = r.stdout.splitlines()
+    assert r.returncode == 1 and len(out) == 2 and "layout is empty" in out[1]  # --json: an error line

@@ -41,11 +41,12 @@ def main(argv=None) -> int:
 
     Called with no ``argv`` (the ``stablelego`` program, ``python -m
     stablelego_jax``), Ctrl-C ends the process within about a second, even
-    inside a long XLA or HiGHS call (:mod:`.interrupt`); called with an
-    ``argv`` list (from Python), it returns 130."""
+    inside a long XLA or HiGHS call (:mod:`.interrupt`), and a finished
+    command ends the process without tearing JAX down (``end_done``);
+    called with an ``argv`` list (from Python), it returns 130."""
     from ..blas import inline_cpu_dispatch
     from ..progress import end_bars
-    from .interrupt import end_process, prompt_interrupt
+    from .interrupt import end_done, end_process, prompt_interrupt
 
     args = build_parser().parse_args(argv)
     # before JAX's backend starts (a no-op once it has, e.g. in tests):
@@ -60,13 +61,16 @@ def main(argv=None) -> int:
                 err = load_library(args)
                 if err:
                     return err
-            return args.func(args)
+            code = args.func(args)
     except KeyboardInterrupt:
         end_bars()
         print(message, file=sys.stderr, flush=True)
         if argv is None:  # the program itself: end now, not when native work in flight winds down
             end_process(130)
         return 130
+    if argv is None and not sys.flags.inspect:  # the program itself, done
+        end_done(code)
+    return code
 
 
 if __name__ == "__main__":
