@@ -734,7 +734,7 @@ class Workers:
         self.pools = [concurrent.futures.ProcessPoolExecutor(1, mp_context=ctx, initializer=_ignore_sigint)
                       for _ in range(jobs)]
         for pool in self.pools:
-            pool.submit(_ready_worker)
+            pool.submit(_ready_worker, jobs >= cpu_cores())
 
     def close(self) -> None:
         for pool in self.pools:
@@ -747,13 +747,16 @@ class Workers:
         self.close()
 
 
-def _ready_worker() -> None:
+def _ready_worker(one_core: bool = False) -> None:
     """What a worker's first solve would otherwise wait for: JAX's CPU
-    backend, the persistent compilation cache and the compiler-options check."""
-    from .runtime import compiler_options, use_persistent_cache
+    backend, the persistent compilation cache and the compiler-options check
+    (``one_core``: the pool has a worker a core, :func:`~stablelego_jax.runtime.one_core_compiles`)."""
+    from .runtime import compiler_options, one_core_compiles, use_persistent_cache
 
     jax.devices()
     use_persistent_cache()
+    if one_core:
+        one_core_compiles()
     compiler_options()
     atexit.register(_quick_exit)  # after JAX's own: runs first
 

@@ -29,7 +29,7 @@ import jax
 import numpy as np
 
 __all__ = ["x64", "x64_differentiable", "float64", "cache_dir", "use_persistent_cache", "compiler_options",
-           "CPU_COMPILER_OPTIONS"]
+           "CPU_COMPILER_OPTIONS", "ONE_CORE_OPTIONS", "one_core_compiles"]
 
 #: XLA options for the library's programs on a CPU backend: XLA's LLVM IR
 #: fusion emitters instead of its newer MLIR ones. On this project's
@@ -38,6 +38,24 @@ __all__ = ["x64", "x64_differentiable", "float64", "cache_dir", "use_persistent_
 #: solve time (``benchmarks/compile_shapes.py`` with and without
 #: ``--xla-defaults``, BENCHMARKS.md, session 33).
 CPU_COMPILER_OPTIONS = {"xla_cpu_use_fusion_emitters": False}
+
+#: More CPU options for a process with one core to itself (:func:`one_core_compiles`):
+#: XLA splits a module's code generation over threads, which on one core only costs.
+ONE_CORE_OPTIONS = {"xla_cpu_parallel_codegen_split_count": 1}
+
+_ONE_CORE: list = []
+
+
+def one_core_compiles() -> None:
+    """From now on this process compiles as one with one core to itself
+    (a worker of a pool with a worker a core): :data:`ONE_CORE_OPTIONS`
+    join :func:`compiler_options`. Pinned to one core, a dense interior
+    point compiled in 1.15-1.19 s instead of 1.27-1.32 s; in ``score``'s
+    pool of 2 on 2 cores the small set's first run took 8.3-8.6 s instead
+    of 8.6-8.9 s, its solves 6.1-6.5 s summed instead of 6.6-6.9 s
+    (BENCHMARKS.md, session 40). With two free cores the default split
+    compiles sooner (0.7 s against 0.9 s), so a lone process keeps it."""
+    _ONE_CORE[:] = [True]
 
 
 @functools.lru_cache(maxsize=None)
@@ -54,11 +72,14 @@ def _accepted(backend: str, options: tuple) -> tuple:
 def compiler_options() -> dict:
     """XLA options for the library's compiles on the default backend:
     :data:`CPU_COMPILER_OPTIONS` on a CPU whose XLA accepts them (checked
-    once per process with a one-line program), none elsewhere. Set
+    once per process with a one-line program), and
+    :data:`ONE_CORE_OPTIONS` after :func:`one_core_compiles`; none
+    elsewhere. Set
     ``STABLELEGO_XLA_DEFAULTS=1`` to compile with XLA's defaults."""
     if os.environ.get("STABLELEGO_XLA_DEFAULTS", "").strip().lower() in ("1", "yes", "true", "on"):
         return {}
-    return dict(_accepted(jax.default_backend(), tuple(sorted(CPU_COMPILER_OPTIONS.items()))))
+    opts = dict(CPU_COMPILER_OPTIONS, **(ONE_CORE_OPTIONS if _ONE_CORE else {}))
+    return dict(_accepted(jax.default_backend(), tuple(sorted(opts.items()))))
 
 
 def float64():

@@ -325,3 +325,21 @@ def test_compiled_solvers_get_the_compiler_options(monkeypatch):
     exe = C.compiled("test_options", lambda v: (v * 2,), None, (np.ones(3),), export=False)
     np.testing.assert_allclose(exe(np.ones(3))[0], 2.0)
     assert seen[-1] == expected_cpu_options()
+
+
+def test_a_process_with_one_core_compiles_in_one_split():
+    """``one_core_compiles`` (a pool worker with a core to itself) adds
+    XLA's one-split code generation to the CPU options, from then on; a
+    program compiled with them gives the same numbers."""
+    out = _python(
+        "import json, jax, numpy as np;"
+        "from stablelego_jax.runtime import compiler_options, one_core_compiles, CPU_COMPILER_OPTIONS;"
+        "a = compiler_options(); one_core_compiles(); b = compiler_options();"
+        "f = lambda v: (v * 2.0 + 1.0).sum();"
+        "x = np.arange(5.0);"
+        "r = [float(jax.jit(f).lower(x).compile(o)(x)) for o in (a, b)];"
+        "print(json.dumps(dict(a=a, b=b, r=r, cpu=jax.default_backend() == 'cpu')))")
+    if out["cpu"] and out["a"]:  # an XLA that accepts the library's options
+        assert out["a"] == {"xla_cpu_use_fusion_emitters": False}
+        assert out["b"] == dict(out["a"], xla_cpu_parallel_codegen_split_count=1)
+    assert out["r"][0] == out["r"][1] == 25.0
