@@ -78,8 +78,12 @@ def compiler_options() -> dict:
     ``STABLELEGO_XLA_DEFAULTS=1`` to compile with XLA's defaults."""
     if os.environ.get("STABLELEGO_XLA_DEFAULTS", "").strip().lower() in ("1", "yes", "true", "on"):
         return {}
-    opts = dict(CPU_COMPILER_OPTIONS, **(ONE_CORE_OPTIONS if _ONE_CORE else {}))
-    return dict(_accepted(jax.default_backend(), tuple(sorted(opts.items()))))
+    backend = jax.default_backend()
+    if _ONE_CORE:  # an XLA that refuses these still gets the others
+        more = _accepted(backend, tuple(sorted(dict(CPU_COMPILER_OPTIONS, **ONE_CORE_OPTIONS).items())))
+        if more:
+            return dict(more)
+    return dict(_accepted(backend, tuple(sorted(CPU_COMPILER_OPTIONS.items()))))
 
 
 def float64():
