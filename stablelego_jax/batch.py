@@ -751,23 +751,16 @@ def _ready_worker(one_core: bool = False) -> None:
     """What a worker's first solve would otherwise wait for: JAX's CPU
     backend, the persistent compilation cache and the compiler-options check
     (``one_core``: the pool has a worker a core, :func:`~stablelego_jax.runtime.one_core_compiles`)."""
-    from .runtime import compiler_options, one_core_compiles, use_persistent_cache
+    from .runtime import compiler_options, one_core_compiles, quick_exit, use_persistent_cache
 
     jax.devices()
     use_persistent_cache()
     if one_core:
         one_core_compiles()
     compiler_options()
-    atexit.register(_quick_exit)  # after JAX's own: runs first
-
-
-def _quick_exit() -> None:
-    """A worker's last act, once its pool has let it go (results sent, the
-    disk cache written as each compile ended): end the process without
-    tearing JAX's backend down, which took 0.5 s of a 10 s run's end."""
-    sys.stdout.flush()
-    sys.stderr.flush()
-    os._exit(0)
+    # a worker's last act, once its pool has let it go (results sent, the disk cache written
+    # as each compile ended); registered after JAX's own hooks, so it runs first
+    atexit.register(quick_exit)
 
 
 def _jax_pool(units, jobs, solver, params, opts, first_cap, fallback, st, ready=None, workers=None) -> Iterator[list]:

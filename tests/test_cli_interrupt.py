@@ -138,7 +138,7 @@ def test_end_process_does_not_wait_for_a_computation_in_flight(tmp_path):
 
 def test_a_finished_command_ends_quickly_with_its_status_and_all_its_output(tmp_path):
     """The program (``python -m stablelego_jax``) ends without tearing JAX
-    down once a command is done (``end_done``): its exit status stays (0,
+    down once a command is done (``runtime.quick_exit``): its exit status stays (0,
     or 1 when an input failed), and every line reaches a reader that takes
     its time."""
     from stablelego_jax.generate.procedural import stairs

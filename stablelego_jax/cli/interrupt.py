@@ -25,7 +25,7 @@ import threading
 from ..files import remove_temporaries
 from ..progress import end_bars
 
-__all__ = ["prompt_interrupt", "end_process", "end_done"]
+__all__ = ["prompt_interrupt", "end_process"]
 
 
 def _flush_streams(timeout_s: float, first=None) -> None:
@@ -56,17 +56,6 @@ def end_process(code: int, message: str | None = None) -> None:
     if message:
         with contextlib.suppress(OSError):
             os.write(2, (message + "\n").encode("utf-8", "replace"))
-    os._exit(code)
-
-
-def end_done(code: int) -> None:
-    """End the process that has done its work with exit status ``code``:
-    stdout and stderr flushed completely (a slow reader is waited for),
-    then exit without the interpreter's teardown of JAX's backend (0.2-0.3
-    s of every command). Every file the command wrote is closed by then."""
-    for s in (sys.stdout, sys.stderr):
-        with contextlib.suppress(Exception):  # a reader that went away (``| head``)
-            s.flush()
     os._exit(code)
 
 

@@ -42,11 +42,13 @@ def main(argv=None) -> int:
     Called with no ``argv`` (the ``stablelego`` program, ``python -m
     stablelego_jax``), Ctrl-C ends the process within about a second, even
     inside a long XLA or HiGHS call (:mod:`.interrupt`), and a finished
-    command ends the process without tearing JAX down (``end_done``);
+    command ends the process without tearing JAX down
+    (:func:`~stablelego_jax.runtime.quick_exit`);
     called with an ``argv`` list (from Python), it returns 130."""
     from ..blas import inline_cpu_dispatch
     from ..progress import end_bars
-    from .interrupt import end_done, end_process, prompt_interrupt
+    from ..runtime import quick_exit
+    from .interrupt import end_process, prompt_interrupt
 
     args = build_parser().parse_args(argv)
     # before JAX's backend starts (a no-op once it has, e.g. in tests):
@@ -69,7 +71,7 @@ def main(argv=None) -> int:
             end_process(130)
         return 130
     if argv is None and not sys.flags.inspect:  # the program itself, done
-        end_done(code)
+        quick_exit(code)
     return code
 
 
