@@ -775,6 +775,7 @@ def _jax_pool(units, jobs, solver, params, opts, first_cap, fallback, st, ready=
     pools = (own or workers).pools[:jobs]
     order = worker_order(units, where)
     queues = [[u for u in order if where[u] == w] for w in range(jobs)]
+    shapes, secs = [un.shape for un in units], [un.seconds() for un in units]
     have: list = [set() for _ in range(jobs)]  # shapes each worker holds
     on_disk: set = set()  # shapes some worker has compiled (and written to the disk cache)
     flying: dict = {}  # future -> (worker, unit)
@@ -782,7 +783,7 @@ def _jax_pool(units, jobs, solver, params, opts, first_cap, fallback, st, ready=
     def feed() -> None:
         for w in range(jobs):
             while sum(1 for v, _ in flying.values() if v == w) < POOL_DEPTH:
-                u = next_unit(queues, w, units, have[w], on_disk)
+                u = next_unit(queues, w, shapes, secs, have[w], on_disk)
                 if u is None:
                     break
                 fut = pools[w].submit(_unit_results, units[u], solver, params, opts, first_cap, fallback)
@@ -795,8 +796,8 @@ def _jax_pool(units, jobs, solver, params, opts, first_cap, fallback, st, ready=
             for fut in done:
                 w, u = flying.pop(fut)
                 out, wst = fut.result()
-                have[w].add(units[u].shape)
-                on_disk.add(units[u].shape)
+                have[w].add(shapes[u])
+                on_disk.add(shapes[u])
                 st.add_solver_counts(wst)
                 feed()  # before the parent writes: no worker waits on it
                 if out:
@@ -812,12 +813,14 @@ def _jax_pool(units, jobs, solver, params, opts, first_cap, fallback, st, ready=
 POOL_DEPTH = 2
 
 
-def next_unit(queues: list, w: int, units: Sequence[SolveUnit], have: set, on_disk: set,
+def next_unit(queues: list, w: int, shapes: Sequence, seconds: Sequence[float], have: set, on_disk: set,
               load_s: float = LOAD_S) -> int | None:
     """The next unit for worker ``w`` (popped from ``queues``, each
-    worker's units in :func:`worker_order`): its own next one; once its
+    worker's units in :func:`worker_order`; ``shapes`` and ``seconds``:
+    each unit's :attr:`SolveUnit.shape` and :meth:`SolveUnit.seconds`,
+    worked out once for the run): its own next one; once its
     queue is empty, the last unit of the worker with the most estimated
-    seconds left (:meth:`SolveUnit.seconds`) among those of a shape ``w``
+    seconds left among those of a shape ``w``
     holds (``have``), else of a shape compiled already (``on_disk``: a load,
     ``load_s``) where that worker has more than four loads' worth left.
     Never a shape nobody has compiled: that is its first taker's
@@ -826,11 +829,11 @@ def next_unit(queues: list, w: int, units: Sequence[SolveUnit], have: set, on_di
     2.2 s of a 10 s first run); this evens the end out."""
     if queues[w]:
         return queues[w].pop(0)
-    left = {v: sum(units[u].seconds() for u in q) for v, q in enumerate(queues) if q and v != w}
+    left = {v: sum(seconds[u] for u in q) for v, q in enumerate(queues) if q and v != w}
     for v in sorted(left, key=lambda v: -left[v]):
         q = queues[v]
-        for ok in (lambda u: units[u].shape in have,
-                   lambda u: units[u].shape in on_disk and left[v] > 4 * load_s):
+        for ok in (lambda u: shapes[u] in have,
+                   lambda u: shapes[u] in on_disk and left[v] > 4 * load_s):
             for j in range(len(q) - 1, 0, -1):  # never the victim's very next unit
                 if ok(q[j]):
                     return q.pop(j)

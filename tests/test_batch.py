@@ -386,28 +386,22 @@ def test_next_unit_evens_out_the_end_of_a_run():
     of a shape it holds, then of a shape compiled elsewhere when enough is
     left to pay a load; never a shape nobody compiled, never the other's
     next unit, and its own queue first."""
-    from stablelego_jax.batch import SolveUnit, next_unit
-
-    class Timed(SolveUnit):  # bsz stands for the unit's seconds
-        def seconds(self):
-            return float(self.bsz)
+    from stablelego_jax.batch import next_unit
 
     a, b, c = ("dense", 24), ("dense", 120), ("layered", 16, 16)
-    units = [Timed(a, 64, 8, 1, [(0, None, None)]), Timed(b, 64, 8, 1, [(1, None, None)]),
-             Timed(b, 64, 8, 1, [(2, None, None)]), Timed(a, 64, 8, 1, [(3, None, None)]),
-             Timed(c, 64, 8, 3, [(4, None, None)])]
-    shape = [u.shape for u in units]
+    shape = [a, b, b, a, c]  # units 0-4, with their estimated seconds
+    secs = [1.0, 1.0, 1.0, 1.0, 3.0]
     q = [[], [0, 1, 2, 3]]
-    assert next_unit(q, 0, units, {shape[1]}, {shape[1]}) == 2  # the last unit of a shape it holds
+    assert next_unit(q, 0, shape, secs, {shape[1]}, {shape[1]}) == 2  # the last unit of a shape it holds
     assert q == [[], [0, 1, 3]]
-    assert next_unit(q, 0, units, set(), set()) is None  # nothing compiled: nothing to take
-    assert next_unit(q, 0, units, set(), {shape[0]}, load_s=1.0) is None  # 3 s left: not four loads
-    assert next_unit(q, 0, units, set(), {shape[0]}) == 3  # loads of 0.15 s: one pays
+    assert next_unit(q, 0, shape, secs, set(), set()) is None  # nothing compiled: nothing to take
+    assert next_unit(q, 0, shape, secs, set(), {shape[0]}, load_s=1.0) is None  # 3 s left: not four loads
+    assert next_unit(q, 0, shape, secs, set(), {shape[0]}) == 3  # loads of 0.15 s: one pays
     q = [[], [0, 4, 4, 3]]
-    assert next_unit(q, 0, units, set(), {shape[0]}, load_s=1.0) == 3  # 8 s left: a load pays
-    assert next_unit(q, 0, units, set(), {shape[0]}) is None  # the rest: shape c, compiled nowhere
-    assert next_unit([[4], [0, 3]], 0, units, {shape[0]}, {shape[0]}) == 4  # its own queue first
-    assert next_unit([[], [3]], 0, units, {shape[0]}, {shape[0]}) is None  # the other's next unit stays
+    assert next_unit(q, 0, shape, secs, set(), {shape[0]}, load_s=1.0) == 3  # 8 s left: a load pays
+    assert next_unit(q, 0, shape, secs, set(), {shape[0]}) is None  # the rest: shape c, compiled nowhere
+    assert next_unit([[4], [0, 3]], 0, shape, secs, {shape[0]}, {shape[0]}) == 4  # its own queue first
+    assert next_unit([[], [3]], 0, shape, secs, {shape[0]}, {shape[0]}) is None  # the other's next unit stays
 
 
 def test_assign_units_charges_a_load_for_a_shape_on_disk():
