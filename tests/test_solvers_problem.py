@@ -313,6 +313,11 @@ def test_layer_gram_blocks_are_the_dense_weighted_gram(layered):
                 np.testing.assert_allclose(E[i], M[(i + 1) * k:(i + 2) * k, i * k:(i + 1) * k], atol=1e-12)
             for j in range(i + 2, gram.L):  # block tridiagonal
                 assert not M[j * k:(j + 1) * k, i * k:(i + 1) * k].any()
+        # added in place to given blocks: the same Gram on top of them
+        base = np.random.default_rng(2).normal(size=(2, gram.L, k, k))
+        Db, Eb = (np.asarray(x) for x in gram.blocks(np.asarray(e), base=(base[0], base[1])))
+        np.testing.assert_allclose(Db, base[0] + D, atol=1e-12)
+        np.testing.assert_allclose(Eb, base[1] + E, atol=1e-12)
 
 
 def test_layered_problem_pads_its_chunks():

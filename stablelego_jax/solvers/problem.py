@@ -1036,9 +1036,9 @@ class LayerGram(NamedTuple):
         them (``E[l]`` = block (l + 1, l)) of ``A diag(e) A'``; ``e``: (m,).
         ``extra`` (idx (N, 3), values (N, 6, 6)): more 6 x 6 windows added
         in the same scatter (:func:`block_windows`' indices). ``base`` (D0,
-        E0), each (L, k, k), ``L > 1``: blocks the Gram is added to, each
-        by a scatter of its own windows in place (no zeroed (2 L, k, k)
-        buffer, and no pass adding its halves to them)."""
+        E0), each (L, k, k): blocks the Gram is added to, each by a scatter
+        of its own windows in place (no zeroed (2 L, k, k) buffer, and no
+        pass adding its halves to them)."""
         L, k = self.L, self.k
         if self.rows is None:
             piece = e[:, None, None] * (self.coef[:, 0, :, None] * self.coef[:, 0, None, :])
@@ -1048,14 +1048,14 @@ class LayerGram(NamedTuple):
         R = piece.shape[0]
         win = piece.reshape(R, 2, 6, 2, 6).transpose(0, 1, 3, 2, 4).reshape(4 * R, 6, 6)
         idx = self.idx.reshape(4 * R, 3)
-        if base is not None and L > 1 and extra is None:
+        if extra is not None:
+            idx = jnp.concatenate([idx, extra[0].reshape(-1, 3)])
+            win = jnp.concatenate([win, extra[1].reshape(-1, 6, 6)])
+        if base is not None:
             drop = jax.lax.GatherScatterMode.FILL_OR_DROP
             shift = jnp.asarray([L, 0, 0], idx.dtype)  # E's windows are blocks L..2L-1; D's fall below 0
             return (jax.lax.scatter_add(base[0], idx, win, _WINDOWS, mode=drop),
                     jax.lax.scatter_add(base[1], idx - shift, win, _WINDOWS, mode=drop))
-        if extra is not None:
-            idx = jnp.concatenate([idx, extra[0].reshape(-1, 3)])
-            win = jnp.concatenate([win, extra[1].reshape(-1, 6, 6)])
         # one layer: no block below the diagonal, so no buffer for E (its windows
         # fall past the end and are dropped): a dense 720-row problem's buffer is
         # 4 MB, and zeroing the unused half took a third of its Gram's time
