@@ -41,8 +41,9 @@ from .formats.dataset import score_grid
 from .formats import rows
 from .formats.ldraw import unsupported_message
 from .layout import LayoutError
-from .model import Params, compile_layout
+from .model import Params, compile_layout, pack_models
 from .progress import Progress
+from .score import eq9_cost
 from .solvers import admm, ipm
 from .solvers.compiled import STATS, available, compiled
 from .solvers.exact import estimated_seconds
@@ -70,7 +71,8 @@ __all__ = ["find_layouts", "read_results", "ScoreStats", "iter_analyses", "analy
            "batch_solver_fn", "batch_sizes", "plan_bytes", "parse_shard", "in_shard", "cpu_cores",
            "RESULT_PREFIX", "SolveUnit", "solve_units", "compiled_ready", "assign_units", "POOL_MIN",
            "auto_split", "ACCELERATOR_SPEEDUP", "ACCELERATOR_COMPILE_S", "CPU_CACHE_BYTES", "DEVICE_CACHE_BYTES",
-           "worker_order", "next_unit", "POOL_DEPTH", "Workers", "jax_pool_size", "exact_parts"]
+           "worker_order", "next_unit", "POOL_DEPTH", "Workers", "jax_pool_size", "exact_parts", "pack_items",
+           "PACK_MOST"]
 
 LAYOUT_EXTS = (".json", ".txt", ".ldr")
 # files that sit beside StableLego layouts but are not layouts
@@ -494,6 +496,7 @@ class SolveUnit:
     bsz: int
     items: list
     c_pad: int | None = None
+    pack: bool = False  # the items are one problem (:func:`~stablelego_jax.model.pack_models`), solved once
 
     @property
     def shape(self) -> tuple:
@@ -502,7 +505,7 @@ class SolveUnit:
 
     def seconds(self) -> float:
         """Rough solve time (s) of the interior point (:func:`~stablelego_jax.solvers.problem.plan_seconds`)."""
-        return len(self.items) * plan_seconds(self.key, self.m_pad)
+        return (1 if self.pack else len(self.items)) * plan_seconds(self.key, self.m_pad)
 
 
 def _longest_first(units: Sequence[SolveUnit]) -> list:
@@ -565,9 +568,45 @@ def solve_units(loaded, solver: str, batch: int, n_dev: int, merge: bool = True,
     for key in sorted(groups):
         items = groups[key]
         m_pad, p_pad, c_pad, bsz, _ = _pieces(items, key, batch, n_dev, crows)
+        if solver == "jax" and bsz == 1 and key[0] == "dense" and key[1] <= ipm.CUT_MIN:
+            units += [SolveUnit(key, m_pad, p_pad, 1, p, c_pad, pack=len(p) > 1)
+                      for p in pack_items(items, key[1], m_pad, c_pad, crows)]
+            continue
         units += [SolveUnit(key, m_pad, p_pad, bsz, items[b0: b0 + bsz], c_pad)
                   for b0 in range(0, len(items), bsz)]
     return units
+
+
+#: Most layouts in one pack (:func:`pack_items`).
+PACK_MOST = 16
+
+
+def pack_items(items: list, n: int, m_pad: int, c_pad: int, crows: dict) -> list[list]:
+    """``items`` ((i, layout, ForceModel)) of one dense bucket of ``n`` bricks,
+    ``m_pad`` columns and ``c_pad`` column chunks, in packs that each fit
+    the bucket (first fit, most bricks first; at most :data:`PACK_MOST` a
+    pack). A small layout solved alone in a joined bucket pays the whole
+    bucket's work; packed with others (one block-diagonal problem,
+    :func:`~stablelego_jax.model.pack_models`) it shares it. Measured on the
+    277 layouts of 2-16 bricks of the 1000-layout shard, in dense 24 with
+    1376 columns: 1.8x faster, 17.5 iterations a pack against 15.4 a layout
+    (BENCHMARKS.md, issue 17). Only buckets solved one problem at a time
+    whose factor is not cut (:attr:`~stablelego_jax.solvers.ipm.IPMOptions.cut`):
+    there a pack's factor grows with its bricks."""
+    packs: list = []  # [members, bricks, columns, chunks]
+    for it in sorted(items, key=lambda it: -it[2].n):
+        fm, c = it[2], crows[it[0]]
+        for p in packs:
+            if (len(p[0]) < PACK_MOST and p[1] + fm.n <= n and p[2] + fm.m <= m_pad
+                    and p[3] + c <= c_pad):
+                p[0].append(it)
+                p[1] += fm.n
+                p[2] += fm.m
+                p[3] += c
+                break
+        else:
+            packs.append([[it], fm.n, fm.m, c])
+    return [p[0] for p in packs]
 
 
 def _batch_name(opts) -> tuple:
@@ -630,6 +669,9 @@ def _solve_unit(unit: SolveUnit, solver: str, params: Params, opts, n_dev: int, 
         st.solve_s += dt
         return sol, dt
 
+    if unit.pack:
+        yield from _solve_pack(unit, params, opts, solve_batch, fallback, st)
+        return
     prepared = []
     for it in unit.items:
         fm, prob = plan_problem(it[2], unit.key, unit.m_pad, unit.p_pad, unit.c_pad)
@@ -659,17 +701,45 @@ def _solve_unit(unit: SolveUnit, solver: str, params: Params, opts, n_dev: int, 
                                   time.perf_counter(), iters=spent[i][1], gap=float(sol.gap[j]),
                                   objective=float(sol.objective[j]))
                 a.time_s = spent[i][0]  # amortised share of its batch(es)
-                if fallback and not a.converged:
-                    t1 = time.perf_counter()
-                    with one_blas_thread():
-                        a = resolve_unconverged(a, o, params)
-                    st.solve_s += time.perf_counter() - t1
-                    st.retried += 1
-                st.not_converged += not a.converged
-                done.append((i, a))
+                done.append((i, _settled(a, o, params, fallback, st)))
             if done:
                 yield done
         pending = retry
+
+
+def _solve_pack(unit: SolveUnit, params: Params, opts, solve_batch, fallback: bool,
+                st: "ScoreStats") -> Iterator[list]:
+    """Solve a packed :class:`SolveUnit` (the interior point) as one problem
+    and answer each layout from its own columns: the forces of a block-
+    diagonal problem are its members' own optima (the pack's shared step
+    lengths and stopping test aside); iterations, gap and convergence are
+    the pack's, the time its share."""
+    pack, cols = pack_models([it[2] for it in unit.items])
+    _, prob = plan_problem(pack, unit.key, unit.m_pad, unit.p_pad, unit.c_pad)
+    sol, dt = solve_batch([prob], 1, opts)
+    f = np.asarray(sol.f[0])
+    done = []
+    for j, (i, lay, model) in enumerate(unit.items):
+        fj = f[cols[j]: cols[j + 1]]
+        a = make_analysis(lay, model, fj, "jax", bool(sol.converged[0]), time.perf_counter(),
+                          iters=int(sol.iters[0]), gap=float(sol.gap[0]), objective=float(eq9_cost(model, fj)))
+        a.time_s = dt / len(unit.items)
+        done.append((i, _settled(a, opts, params, fallback, st)))
+    yield done
+
+
+def _settled(a, opts, params: Params, fallback: bool, st: "ScoreStats"):
+    """``a``, or with ``fallback`` where it did not converge its answer by a
+    longer run, then the exact solver (:func:`~stablelego_jax.analysis.resolve_unconverged`);
+    counted in ``st``."""
+    if fallback and not a.converged:
+        t1 = time.perf_counter()
+        with one_blas_thread():
+            a = resolve_unconverged(a, opts, params)
+        st.solve_s += time.perf_counter() - t1
+        st.retried += 1
+    st.not_converged += not a.converged
+    return a
 
 
 def _unit_results(unit: SolveUnit, solver, params, opts, first_cap, fallback) -> tuple:

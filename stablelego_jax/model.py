@@ -20,6 +20,7 @@ force x, y, z (N) and torque about x, y, z at the brick centre (N m).
 from __future__ import annotations
 
 import dataclasses
+from typing import Sequence
 
 import numpy as np
 
@@ -28,7 +29,7 @@ from .layout import Layout, cell_owner, cells_of
 from .scene import BLOCK, Scene, boxes
 
 __all__ = ["Params", "ForceModel", "compile_layout", "compile_scene", "scene_columns", "shifted", "point_jacobian",
-           "column_wrenches", "normal_groups",
+           "column_wrenches", "normal_groups", "pack_models",
            "NORMAL", "KNOB", "SIDE"]
 
 NORMAL, KNOB, SIDE = 0, 1, 2
@@ -148,6 +149,43 @@ class ForceModel:
             self, col_brick=cb.astype(np.int32), col_coef=coef, col_kind=kind, col_mask=mask,
             group=grp, gravity=grav, brick_mask=bm, layer=lay, centre=cen,
         )
+
+
+def pack_models(models: Sequence[ForceModel]) -> tuple[ForceModel, np.ndarray]:
+    """Several unpadded models as one (block diagonal: no column joins two
+    of them), so that one solve answers them all; the Eq. 9 problem of the
+    pack is the sum of theirs. Bricks and columns follow in the order of
+    ``models``; the ground stays the index past the last brick. Returns the
+    pack and ``cols`` ((len(models) + 1,) int): model j's forces are the
+    pack's ``f[cols[j]:cols[j + 1]]``. All models share one ``Params``."""
+    if not models:
+        raise ValueError("pack_models: no models")
+    for fm in models:
+        if fm.n_pad != fm.n or fm.m_pad != fm.m or fm.params != models[0].params:
+            raise ValueError("pack_models: models must be unpadded and share their Params")
+    ns = np.cumsum([0] + [fm.n for fm in models])
+    cols = np.cumsum([0] + [fm.m for fm in models])
+    N, M = int(ns[-1]), int(cols[-1])
+    P = max(fm.group.shape[1] for fm in models)
+    group = np.full((N, P), M, np.int32)
+    cb = []
+    for fm, b0, c0 in zip(models, ns, cols):
+        cb.append(np.where(fm.col_brick >= fm.n, N, fm.col_brick + b0))
+        g = fm.group
+        group[b0: b0 + fm.n, : g.shape[1]] = np.where(g >= fm.m, M, g + c0)
+
+    def cat(name, fill):
+        parts = [getattr(fm, name) for fm in models]
+        if any(p is None for p in parts):
+            return None
+        return np.concatenate(parts) if fill is None else np.concatenate(parts).astype(fill)
+
+    pack = ForceModel(
+        n=N, m=M, col_brick=np.concatenate(cb).astype(np.int32), col_coef=cat("col_coef", None),
+        col_kind=cat("col_kind", np.int8), col_mask=cat("col_mask", bool), group=group,
+        gravity=cat("gravity", None), brick_mask=cat("brick_mask", bool), params=models[0].params,
+        layer=cat("layer", np.int32), centre=cat("centre", None))
+    return pack, cols
 
 
 def normal_groups(col_brick: np.ndarray, col_kind: np.ndarray, n: int) -> np.ndarray:

@@ -17,7 +17,7 @@ import numpy as np
 
 from .model import NORMAL, Params
 
-__all__ = ["equilibrium", "equilibrium_t", "residual", "largest_drag", "bottom_sum", "brick_drag", "residual_bad",
+__all__ = ["equilibrium", "equilibrium_t", "residual", "largest_drag", "bottom_sum", "brick_drag", "residual_bad", "eq9_cost",
            "floating_bricks", "verdict", "brick_scores", "weakest_brick", "TIE"]
 
 #: Scores (and drags / T) closer than this are a tie for the weakest brick.
@@ -96,6 +96,19 @@ def brick_drag(model, f):
     xp = _xp(f)
     d = xp.where(model.col_kind == NORMAL, xp.maximum(-f, 0.0), 0.0)
     return largest_drag(d, model.group)
+
+
+def eq9_cost(model, f) -> float:
+    """Paper Eq. 9's cost of forces ``f`` ((m_pad,) N) on ``model``: the L1
+    norm of the equilibrium residual (N and N m, every row weighted 1: the
+    solvers' scaled rows and weights multiply out to that), plus ``alpha``
+    times the sum of each brick's largest drag, plus ``beta`` times the sum
+    of the drags (N). The solvers report it as ``objective``."""
+    xp = _xp(f)
+    p = model.params
+    r = residual(model, f) * model.brick_mask[:, None]
+    d = xp.where(model.col_kind == NORMAL, xp.maximum(-f, 0.0), 0.0)
+    return xp.abs(r).sum() + p.alpha * largest_drag(d, model.group).sum() + p.beta * d.sum()
 
 
 def residual_bad(r, params: Params):

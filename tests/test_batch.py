@@ -535,3 +535,47 @@ def test_exact_solver_yields_each_layout_as_it_is_solved():
     first = next(it)
     assert [i for i, _ in first] == [0] and first[0][1].solver == "exact"
     assert [[i for i, _ in part] for part in it] == [[1], [2], [3]]
+
+
+def test_pack_items_fill_the_bucket_and_cover_every_layout_once():
+    from types import SimpleNamespace
+
+    from stablelego_jax.batch import PACK_MOST, pack_items
+
+    rng = np.random.default_rng(0)
+    items = [(i, None, SimpleNamespace(n=int(rng.integers(1, 13)), m=int(rng.integers(5, 200))))
+             for i in range(60)] + [(60 + i, None, SimpleNamespace(n=1, m=1)) for i in range(40)]
+    crows = {it[0]: int(rng.integers(1, 20)) for it in items}
+    packs = pack_items(items, 24, 1000, 120, crows)
+    assert sorted(it[0] for p in packs for it in p) == list(range(100))
+    for p in packs:
+        assert 1 <= len(p) <= PACK_MOST
+        assert sum(it[2].n for it in p) <= 24
+        assert sum(it[2].m for it in p) <= 1000
+        assert sum(crows[it[0]] for it in p) <= 120
+    assert len(packs) < 40  # the 1-brick layouts share packs
+
+
+def test_packed_small_layouts_get_the_answers_they_get_alone(monkeypatch):
+    """Small layouts of a dense bucket are solved several to a problem
+    (block diagonal); each gets the scores it gets solved alone."""
+    import stablelego_jax.batch as batch
+    from stablelego_jax.batch import analyze_many, solve_units
+    from stablelego_jax.model import compile_layout
+
+    # two larger stairs join the small layouts' bucket to dense 24, solved one problem at a time
+    lays = [stairs(k) for k in range(1, 7)] + [tower(k) for k in range(1, 7)] + [stairs(18), stairs(22)]
+    loaded = [(i, lay, compile_layout(lay)) for i, lay in enumerate(lays)]
+    units = solve_units(loaded, "jax", 64, 1)
+    assert any(u.pack for u in units)
+    assert sorted(it[0] for u in units for it in u.items) == list(range(len(lays)))
+    packed = analyze_many(lays, "jax", jobs=1)
+    monkeypatch.setattr(batch, "PACK_MOST", 1)
+    assert not any(u.pack for u in solve_units(loaded, "jax", 64, 1))
+    alone = analyze_many(lays, "jax", jobs=1)
+    for a, b in zip(packed, alone):
+        assert (a.stable, a.weakest, a.converged, a.solver) == (b.stable, b.weakest, b.converged, b.solver)
+        assert a.scores.keys() == b.scores.keys()
+        assert max(abs(a.scores[k] - b.scores[k]) for k in a.scores) < 1e-6
+        assert a.forces.shape == b.forces.shape
+        assert a.objective == pytest.approx(b.objective, rel=1e-5, abs=1e-12)

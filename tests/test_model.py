@@ -1,4 +1,5 @@
 import numpy as np
+import pytest
 
 from stablelego_jax import make_layout
 from stablelego_jax.model import KNOB, NORMAL, SIDE, Params, compile_layout
@@ -69,3 +70,27 @@ def test_compile_1000_bricks_is_vectorised():
 
     m = compile_layout(cuboid(10, 10, 10))
     assert m.n == 1000 and m.m == 1000 * (4 + 2) + 2 * 10 * 9 * 10
+
+
+def test_pack_models_is_block_diagonal_and_keeps_each_models_columns():
+    from stablelego_jax.generate.procedural import stairs, tower
+    from stablelego_jax.model import pack_models
+
+    models = [compile_layout(stairs(3)), compile_layout(tower(2)), compile_layout(stairs(2))]
+    pack, cols = pack_models(models)
+    assert (pack.n, pack.m) == (sum(m.n for m in models), sum(m.m for m in models))
+    assert list(cols) == list(np.cumsum([0] + [m.m for m in models]))
+    A = pack.dense_A()
+    r = 0
+    for j, m in enumerate(models):
+        block = A[6 * r: 6 * (r + m.n), cols[j]: cols[j + 1]]
+        np.testing.assert_array_equal(block, m.dense_A())
+        assert not A[6 * r: 6 * (r + m.n)].any(axis=0)[np.r_[:cols[j], cols[j + 1]:pack.m]].any()
+        np.testing.assert_array_equal(pack.gravity[r: r + m.n], m.gravity)
+        # each brick's bottom columns are its model's, moved by the model's column offset
+        g = pack.group[r: r + m.n, : m.group.shape[1]]
+        np.testing.assert_array_equal(g, np.where(m.group >= m.m, pack.m, m.group + cols[j]))
+        r += m.n
+    assert (pack.col_brick[pack.col_brick >= pack.n] == pack.n).all()  # the ground
+    with pytest.raises(ValueError, match="unpadded"):
+        pack_models([models[0].pad(8, 128)])

@@ -7,8 +7,8 @@ import pytest
 
 from stablelego_jax.generate.procedural import stairs
 from stablelego_jax.model import NORMAL, Params, compile_layout
-from stablelego_jax.score import (bottom_sum, brick_drag, brick_scores, equilibrium, equilibrium_t, largest_drag,
-                                  residual, residual_bad, verdict)
+from stablelego_jax.score import (bottom_sum, brick_drag, brick_scores, eq9_cost, equilibrium, equilibrium_t,
+                                  largest_drag, residual, residual_bad, verdict)
 from stablelego_jax.solvers.exact import solve_exact
 
 
@@ -113,3 +113,13 @@ def test_weakest_brick_breaks_ties_by_drag_then_input_order():
     assert weakest_brick([0.5, 0.9, 0.9 - 1e-9, 0.2], [0.1, 0.4, 0.4 + 1e-9, 0.0], T) == 1
     assert weakest_brick([1.0, 1.0, 0.3], [0.0, 0.0, 0.1], T) == 0  # two floating bricks: the first
     assert weakest_brick([0.3, 0.5 + 2e-6, 0.5], [0.1, 0.0, 0.4], T) == 1  # beyond the tie: the score decides
+
+
+def test_eq9_cost_is_the_exact_solvers_objective():
+    # a stair that fails: residuals, drags and the largest drags all cost
+    model = compile_layout(stairs(6))
+    r = solve_exact(model)
+    assert r.success
+    assert eq9_cost(model, r.f) == pytest.approx(r.objective, rel=1e-6)
+    f = np.zeros(model.m_pad)  # no forces: every brick's weight is residual
+    assert eq9_cost(model, f) == pytest.approx(np.abs(model.gravity[: model.n]).sum())
