@@ -72,7 +72,7 @@ __all__ = ["find_layouts", "read_results", "ScoreStats", "iter_analyses", "analy
            "RESULT_PREFIX", "SolveUnit", "solve_units", "compiled_ready", "assign_units", "POOL_MIN",
            "auto_split", "ACCELERATOR_SPEEDUP", "ACCELERATOR_COMPILE_S", "CPU_CACHE_BYTES", "DEVICE_CACHE_BYTES",
            "worker_order", "next_unit", "POOL_DEPTH", "Workers", "jax_pool_size", "exact_parts", "pack_items",
-           "PACK_MOST"]
+           "PACK_MOST", "solve_unit"]
 
 LAYOUT_EXTS = (".json", ".txt", ".ldr")
 # files that sit beside StableLego layouts but are not layouts
@@ -409,7 +409,7 @@ def iter_analyses(
         yield from _jax_pool(units, jobs, solver, params, opts, first_cap, fallback, st, ready, workers)
         return
     for unit in units:
-        yield from _solve_unit(unit, solver, params, opts, n_dev, first_cap, fallback, st)
+        yield from solve_unit(unit, solver, params, opts, n_dev, first_cap, fallback, st)
 
 
 def jax_pool_size(jobs: int, n_dev: int, n_layouts: int) -> int:
@@ -646,9 +646,13 @@ def compiled_ready(params: Params, opts, n_dev: int):
     return ready
 
 
-def _solve_unit(unit: SolveUnit, solver: str, params: Params, opts, n_dev: int, first_cap: int,
-                fallback: bool, st: "ScoreStats") -> Iterator[list]:
-    """Solve one :class:`SolveUnit`; yields lists of (i, Analysis) (see :func:`iter_analyses`)."""
+def solve_unit(unit: SolveUnit, solver: str, params: Params, opts, n_dev: int, first_cap: int,
+               fallback: bool, st: "ScoreStats") -> Iterator[list]:
+    """Solve one :class:`SolveUnit` (``first_cap``, ``fallback``, ``st``: as
+    :func:`iter_analyses`' ``first_cap``, ``fallback`` and ``stats``);
+    yields lists of (i, Analysis) (see :func:`iter_analyses`). A packed unit
+    is one problem; where it does not converge, each of its layouts is
+    solved alone, with the same compiled shape."""
 
     def solve_batch(probs, bsz, o):
         """Solve one batch of problems with options ``o``; returns (solution, seconds)."""
@@ -670,7 +674,18 @@ def _solve_unit(unit: SolveUnit, solver: str, params: Params, opts, n_dev: int, 
         return sol, dt
 
     if unit.pack:
-        yield from _solve_pack(unit, params, opts, solve_batch, fallback, st)
+        done, dt = _solve_pack(unit, opts, solve_batch)
+        if done is not None:
+            yield [(i, _settled(a, opts, params, fallback, st)) for i, a in done]
+            return
+        # a pack that did not converge: each layout alone (the same compiled shape), its
+        # time counting its share of the pack's
+        for it in unit.items:
+            for part in solve_unit(dataclasses.replace(unit, items=[it], pack=False), solver, params, opts,
+                                    n_dev, first_cap, fallback, st):
+                for _, a in part:
+                    a.time_s += dt / len(unit.items)
+                yield part
         return
     prepared = []
     for it in unit.items:
@@ -707,25 +722,28 @@ def _solve_unit(unit: SolveUnit, solver: str, params: Params, opts, n_dev: int, 
         pending = retry
 
 
-def _solve_pack(unit: SolveUnit, params: Params, opts, solve_batch, fallback: bool,
-                st: "ScoreStats") -> Iterator[list]:
-    """Solve a packed :class:`SolveUnit` (the interior point) as one problem
-    and answer each layout from its own columns: the forces of a block-
-    diagonal problem are its members' own optima (the pack's shared step
-    lengths and stopping test aside); iterations, gap and convergence are
-    the pack's, the time its share."""
+def _solve_pack(unit: SolveUnit, opts, solve_batch) -> tuple:
+    """Solve a packed :class:`SolveUnit` (the interior point) as one problem:
+    ``([(i, Analysis)], seconds)``, each layout answered from its own
+    columns (the forces of a block-diagonal problem are its members' own
+    optima; iterations, gap and convergence are the pack's, the time its
+    share), or ``(None, seconds)`` when the pack did not converge (its
+    layouts share one step length and one stopping test: a pack of very
+    different layouts can stall where each alone converges)."""
     pack, cols = pack_models([it[2] for it in unit.items])
     _, prob = plan_problem(pack, unit.key, unit.m_pad, unit.p_pad, unit.c_pad)
     sol, dt = solve_batch([prob], 1, opts)
+    if not bool(sol.converged[0]):
+        return None, dt
     f = np.asarray(sol.f[0])
     done = []
     for j, (i, lay, model) in enumerate(unit.items):
         fj = f[cols[j]: cols[j + 1]]
-        a = make_analysis(lay, model, fj, "jax", bool(sol.converged[0]), time.perf_counter(),
-                          iters=int(sol.iters[0]), gap=float(sol.gap[0]), objective=float(eq9_cost(model, fj)))
+        a = make_analysis(lay, model, fj, "jax", True, time.perf_counter(), iters=int(sol.iters[0]),
+                          gap=float(sol.gap[0]), objective=float(eq9_cost(model, fj)))
         a.time_s = dt / len(unit.items)
-        done.append((i, _settled(a, opts, params, fallback, st)))
-    yield done
+        done.append((i, a))
+    return done, dt
 
 
 def _settled(a, opts, params: Params, fallback: bool, st: "ScoreStats"):
@@ -747,7 +765,7 @@ def _unit_results(unit: SolveUnit, solver, params, opts, first_cap, fallback) ->
     worker's :class:`ScoreStats` of it)."""
     st = ScoreStats()
     with one_blas_thread():
-        out = [x for part in _solve_unit(unit, solver, params, opts, 1, first_cap, fallback, st) for x in part]
+        out = [x for part in solve_unit(unit, solver, params, opts, 1, first_cap, fallback, st) for x in part]
     return out, st
 
 
