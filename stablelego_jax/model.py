@@ -86,6 +86,9 @@ class ForceModel:
       the solver plans may number bricks by slabs along x or y instead of
       by layer (:func:`~stablelego_jax.solvers.problem.slab_levels`). None
       for models built by hand.
+    member: (n_pad,) int32 which layout of a pack (:func:`pack_models`) each
+      brick belongs to (0 for padding); None for one layout. Each layout's
+      canonical term is normalised by its own weight.
     """
 
     n: int
@@ -100,6 +103,7 @@ class ForceModel:
     params: Params
     layer: np.ndarray | None = None
     centre: np.ndarray | None = None
+    member: np.ndarray | None = None
 
     @property
     def n_pad(self) -> int:
@@ -145,9 +149,13 @@ class ForceModel:
         if self.centre is not None:
             cen = np.zeros((n_pad, 3))
             cen[: self.n_pad] = self.centre
+        mem = None
+        if self.member is not None:
+            mem = np.zeros(n_pad, np.int32)
+            mem[: self.n_pad] = self.member
         return dataclasses.replace(
             self, col_brick=cb.astype(np.int32), col_coef=coef, col_kind=kind, col_mask=mask,
-            group=grp, gravity=grav, brick_mask=bm, layer=lay, centre=cen,
+            group=grp, gravity=grav, brick_mask=bm, layer=lay, centre=cen, member=mem,
         )
 
 
@@ -157,12 +165,15 @@ def pack_models(models: Sequence[ForceModel]) -> tuple[ForceModel, np.ndarray]:
     pack is the sum of theirs. Bricks and columns follow in the order of
     ``models``; the ground stays the index past the last brick. Returns the
     pack and ``cols`` ((len(models) + 1,) int): model j's forces are the
-    pack's ``f[cols[j]:cols[j + 1]]``. All models share one ``Params``."""
+    pack's ``f[cols[j]:cols[j + 1]]``. All models share one ``Params``. The
+    pack's ``member`` numbers its layouts, so that each one's canonical term
+    is normalised by its own weight (the pack's optimum is then each
+    layout's own: its problem is the sum of theirs)."""
     if not models:
         raise ValueError("pack_models: no models")
     for fm in models:
-        if fm.n_pad != fm.n or fm.m_pad != fm.m or fm.params != models[0].params:
-            raise ValueError("pack_models: models must be unpadded and share their Params")
+        if fm.n_pad != fm.n or fm.m_pad != fm.m or fm.params != models[0].params or fm.member is not None:
+            raise ValueError("pack_models: models must be unpadded, not packs, and share their Params")
     ns = np.cumsum([0] + [fm.n for fm in models])
     cols = np.cumsum([0] + [fm.m for fm in models])
     N, M = int(ns[-1]), int(cols[-1])
@@ -184,7 +195,8 @@ def pack_models(models: Sequence[ForceModel]) -> tuple[ForceModel, np.ndarray]:
         n=N, m=M, col_brick=np.concatenate(cb).astype(np.int32), col_coef=cat("col_coef", None),
         col_kind=cat("col_kind", np.int8), col_mask=cat("col_mask", bool), group=group,
         gravity=cat("gravity", None), brick_mask=cat("brick_mask", bool), params=models[0].params,
-        layer=cat("layer", np.int32), centre=cat("centre", None))
+        layer=cat("layer", np.int32), centre=cat("centre", None),
+        member=np.repeat(np.arange(len(models), dtype=np.int32), np.diff(ns)))
     return pack, cols
 
 

@@ -92,5 +92,9 @@ def test_pack_models_is_block_diagonal_and_keeps_each_models_columns():
         np.testing.assert_array_equal(g, np.where(m.group >= m.m, pack.m, m.group + cols[j]))
         r += m.n
     assert (pack.col_brick[pack.col_brick >= pack.n] == pack.n).all()  # the ground
+    assert list(pack.member) == [j for j, m in enumerate(models) for _ in range(m.n)]
+    assert list(pack.pad(pack.n + 3, pack.m).member) == list(pack.member) + [0, 0, 0]
     with pytest.raises(ValueError, match="unpadded"):
         pack_models([models[0].pad(8, 128)])
+    with pytest.raises(ValueError, match="not packs"):
+        pack_models([pack, models[0]])

@@ -135,7 +135,6 @@ def _system(prob: Problem, params: Params, opts: IPMOptions) -> dict:
     group = prob.group
     owner = jnp.zeros((m + 1,), jnp.int32).at[group].set(
         jnp.broadcast_to(jnp.arange(n, dtype=jnp.int32)[:, None], group.shape))[:m]
-    xsel = jnp.concatenate([jnp.ones((m,), dtype), zeros(m + 13 * n)])  # the forces' entries of z
 
     def parts(v):  # slack-space vector -> its 7 parts (flat)
         return jnp.split(v, [m, 2 * m, 3 * m, 4 * m, 4 * m + n, 4 * m + 7 * n])
@@ -144,8 +143,11 @@ def _system(prob: Problem, params: Params, opts: IPMOptions) -> dict:
         return jnp.split(z, [m, 2 * m, 2 * m + n, 2 * m + 7 * n])
 
     alpha, beta = params.alpha, params.beta
-    # the canonical term on the forces: ridge / (total weight, in T) (see Params)
-    reg = params.ridge / jnp.maximum(jnp.abs(g[:, 2]).sum(), 1e-30)
+    # the canonical term on the forces: ridge / (total weight, in T) (see Params), each
+    # layout of a pack (Problem.member) by its own weight, (m,) a column by its brick's
+    wsum = jax.ops.segment_sum(jnp.abs(g[:, 2]), prob.member, num_segments=n)
+    reg = (params.ridge / jnp.maximum(wsum, 1e-30))[prob.member][jnp.minimum(prob.col_brick[:, 0], n - 1)]
+    regz = jnp.concatenate([reg, zeros(m + 13 * n)])  # on z: the forces' entries
 
     # one dense block solved alone: factor only the leading rows of the real bricks
     # (padding bricks come last), at the smallest of the ladder's sizes that holds them
@@ -179,7 +181,7 @@ def _system(prob: Problem, params: Params, opts: IPMOptions) -> dict:
         return (a * b).sum()
 
     def grad(z):  # gradient of the cost: c + (reg x, 0, ...)
-        return cvec + reg * xsel * z
+        return cvec + regz * z
 
     def residuals(z, nu, lam):
         return grad(z) - Gt(lam) + Et(nu), Ez(z) + g
@@ -252,7 +254,7 @@ def _system(prob: Problem, params: Params, opts: IPMOptions) -> dict:
 
     def measures(z, nu, lam):
         rd, rp_res = residuals(z, nu, lam)
-        q = reg * (xsel * z * z).sum()
+        q = (regz * z * z).sum()
         obj = dot(cvec, z) + q / 2
         dual = (nu * g).sum() - q / 2  # the QP's (Wolfe) dual value
         pres = jnp.abs(rp_res).max()

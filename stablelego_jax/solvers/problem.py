@@ -84,6 +84,7 @@ class Problem(NamedTuple):
     group: jnp.ndarray  # (n, P) int32, m = empty
     gravity: jnp.ndarray  # (n, 6)
     brick_mask: jnp.ndarray  # (n,) bool
+    member: jnp.ndarray  # (n,) int32 layout of a pack each brick is in (ForceModel.member; 0: one layout)
     layers: jnp.ndarray | None = None  # (L,): bricks numbered layer by layer (None: one layer, dense)
     chunks: jnp.ndarray | None = None  # (C, W) int32: columns grouped by brick pair, m = none (pair_chunks)
     # bricks numbered by slabs (slab_levels; None: by layers or dense): each brick's supports, the
@@ -121,6 +122,7 @@ def to_problem(model: ForceModel) -> Problem:
         group=np.asarray(model.group, np.int32),
         gravity=np.asarray(model.gravity, np.float64),
         brick_mask=np.asarray(model.brick_mask, bool),
+        member=np.zeros(model.n_pad, np.int32) if model.member is None else np.asarray(model.member, np.int32),
     )
 
 
@@ -613,8 +615,13 @@ def to_layered(model: ForceModel, L: int, B: int, levels: np.ndarray | None = No
     if model.centre is not None:
         cen = np.zeros((n_new, 3))
         cen[new] = model.centre[:n]
+    mem = None
+    if model.member is not None:
+        mem = np.zeros(n_new, np.int32)
+        mem[new] = model.member[:n]
     return dataclasses.replace(
-        model, col_brick=cb.astype(np.int32), gravity=grav, group=group, brick_mask=bm, layer=lay, centre=cen
+        model, col_brick=cb.astype(np.int32), gravity=grav, group=group, brick_mask=bm, layer=lay, centre=cen,
+        member=mem,
     )
 
 
