@@ -682,7 +682,7 @@ def solve_unit(unit: SolveUnit, solver: str, params: Params, opts, n_dev: int, f
         # time counting its share of the pack's
         for it in unit.items:
             for part in solve_unit(dataclasses.replace(unit, items=[it], pack=False), solver, params, opts,
-                                    n_dev, first_cap, fallback, st):
+                                   n_dev, first_cap, fallback, st):
                 for _, a in part:
                     a.time_s += dt / len(unit.items)
                 yield part
@@ -728,8 +728,8 @@ def _solve_pack(unit: SolveUnit, opts, solve_batch) -> tuple:
     columns (the forces of a block-diagonal problem are its members' own
     optima; iterations, gap and convergence are the pack's, the time its
     share), or ``(None, seconds)`` when the pack did not converge (its
-    layouts share one step length and one stopping test: a pack of very
-    different layouts can stall where each alone converges)."""
+    layouts share one step length and one stopping test, so one layout that
+    stalls holds the others)."""
     pack, cols = pack_models([it[2] for it in unit.items])
     _, prob = plan_problem(pack, unit.key, unit.m_pad, unit.p_pad, unit.c_pad)
     sol, dt = solve_batch([prob], 1, opts)

@@ -17,8 +17,8 @@ import numpy as np
 
 from .model import NORMAL, Params
 
-__all__ = ["equilibrium", "equilibrium_t", "residual", "largest_drag", "bottom_sum", "brick_drag", "residual_bad", "eq9_cost",
-           "floating_bricks", "verdict", "brick_scores", "weakest_brick", "TIE"]
+__all__ = ["equilibrium", "equilibrium_t", "residual", "largest_drag", "bottom_sum", "brick_drag", "residual_bad",
+           "eq9_cost", "floating_bricks", "verdict", "brick_scores", "weakest_brick", "TIE"]
 
 #: Scores (and drags / T) closer than this are a tie for the weakest brick.
 TIE = 1e-6
