@@ -98,14 +98,15 @@ def brick_drag(model, f):
     return largest_drag(d, model.group)
 
 
-def eq9_cost(model, f) -> float:
-    """Paper Eq. 9's cost of forces ``f`` ((m_pad,) N) on ``model``: the L1
-    norm of the equilibrium residual (N and N m, every row weighted 1: the
-    solvers' scaled rows and weights multiply out to that), plus ``alpha``
-    times the sum of each brick's largest drag, plus ``beta`` times the sum
-    of the drags (N). The solvers report it as ``objective``."""
+def eq9_cost(model, f, params: Params | None = None) -> float:
+    """Paper Eq. 9's cost of forces ``f`` ((m_pad,) N) on ``model`` (a
+    ForceModel, or a solver's Problem with ``params``): the L1 norm of the
+    equilibrium residual (N and N m, every row weighted 1: the solvers'
+    scaled rows and weights multiply out to that), plus ``alpha`` times the
+    sum of each brick's largest drag, plus ``beta`` times the sum of the
+    drags (N). The solvers report it as ``objective``."""
     xp = _xp(f)
-    p = model.params
+    p = params or model.params
     r = residual(model, f) * model.brick_mask[:, None]
     d = xp.where(model.col_kind == NORMAL, xp.maximum(-f, 0.0), 0.0)
     return xp.abs(r).sum() + p.alpha * largest_drag(d, model.group).sum() + p.beta * d.sum()

@@ -37,7 +37,7 @@ import jax.numpy as jnp
 
 from ..model import KNOB, NORMAL, SIDE, Params
 from ..runtime import x64
-from ..score import largest_drag
+from ..score import eq9_cost
 from .blocks import block_cholesky, block_solve
 from .problem import Problem, Solution, layer_gram, make_solution, operators
 
@@ -103,13 +103,11 @@ def _drag_prox(v, prob: Problem, params: Params, step):
     return -a2
 
 
-def _objective(prob, params, A, g, w, x):
-    """Scaled Eq. 9 objective at x (side presses clipped to >= 0)."""
+def _objective(prob, params, x):
+    """Eq. 9's cost at x (forces in T; side presses clipped to >= 0), in the
+    scaled units (:func:`~stablelego_jax.score.eq9_cost` over T)."""
     x = jnp.where(prob.col_kind == SIDE, jnp.maximum(x, 0.0), x)
-    r = A(x) + g
-    d = jnp.where(prob.col_kind == NORMAL, jnp.maximum(-x, 0.0), 0.0)
-    dmax = largest_drag(d, prob.group)
-    return (w * jnp.abs(r)).sum() + params.alpha * dmax.sum() + params.beta * d.sum()
+    return eq9_cost(prob, x * params.T, params) / params.T
 
 
 @x64
@@ -180,7 +178,7 @@ def solve(prob: Problem, params: Params = Params(), opts: SolverOptions = Solver
         ps_r = jnp.maximum(jnp.abs(ax).max(), jnp.abs(zr).max())
         ps_x = jnp.maximum(jnp.abs(x).max(), jnp.abs(zx).max())
         ds_r, ds_x = jnp.abs(aty).max(), jnp.abs(yx).max()
-        obj = _objective(prob, params, A, g, w, x)
+        obj = _objective(prob, params, x)
         dual = (yr * g).sum()
         gap = (obj - dual) / jnp.maximum(jnp.abs(obj), 1e-12)
         pr = jnp.maximum(pr_r, pr_x)
