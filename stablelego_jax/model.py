@@ -185,17 +185,18 @@ def pack_models(models: Sequence[ForceModel]) -> tuple[ForceModel, np.ndarray]:
         g = fm.group
         group[b0: b0 + fm.n, : g.shape[1]] = np.where(g >= fm.m, M, g + c0)
 
-    def cat(name, fill):
+    def cat(name, dtype=None):
         parts = [getattr(fm, name) for fm in models]
         if any(p is None for p in parts):
             return None
-        return np.concatenate(parts) if fill is None else np.concatenate(parts).astype(fill)
+        out = np.concatenate(parts)
+        return out if dtype is None else out.astype(dtype)
 
     pack = ForceModel(
-        n=N, m=M, col_brick=np.concatenate(cb).astype(np.int32), col_coef=cat("col_coef", None),
+        n=N, m=M, col_brick=np.concatenate(cb).astype(np.int32), col_coef=cat("col_coef"),
         col_kind=cat("col_kind", np.int8), col_mask=cat("col_mask", bool), group=group,
-        gravity=cat("gravity", None), brick_mask=cat("brick_mask", bool), params=models[0].params,
-        layer=cat("layer", np.int32), centre=cat("centre", None),
+        gravity=cat("gravity"), brick_mask=cat("brick_mask", bool), params=models[0].params,
+        layer=cat("layer", np.int32), centre=cat("centre"),
         member=np.repeat(np.arange(len(models), dtype=np.int32), np.diff(ns)))
     return pack, cols
 
