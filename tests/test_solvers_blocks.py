@@ -81,3 +81,30 @@ def test_cut_cholesky_factors_the_leading_rows_as_the_full_factor_does(live):
     C, G = jax.jit(cut_cholesky, static_argnums=3)(jnp.asarray(D)[None], jnp.asarray(P), live, (120, 240, 300))
     np.testing.assert_allclose(np.asarray(C[0]), np.linalg.cholesky(D + P.T @ P), rtol=1e-10, atol=1e-10)
     assert C.shape == (1, k, k) and not np.asarray(G).any()
+
+
+def test_block_cholesky_cut_per_layer_is_the_full_factor():
+    """Layers whose slots from ``live[l]`` on are padding (decoupled,
+    diagonal, no coupling to the next layers): each layer factored at the
+    smallest cut holding its and its neighbours' live rows gives the full
+    factor, and the system's solution."""
+    rng = np.random.default_rng(3)
+    L, k = 6, 96
+    live = np.array([90, 30, 20, 12, 10, 40])  # cuts 96, 96, 48, 24, 48, 48
+    N = L * k
+    X = rng.normal(size=(N, N))
+    M = _cut(X @ X.T, L, k) + N * np.eye(N)
+    pad = np.concatenate([l * k + np.arange(live[l], k) for l in range(L)])
+    diag = rng.uniform(1.0, 3.0, size=len(pad))
+    M[pad, :] = 0.0
+    M[:, pad] = 0.0
+    M[pad, pad] = diag
+    D, E = _blocks(M, L, k)
+    full = jax.jit(block_cholesky)(jnp.asarray(D), jnp.asarray(E))
+    fn = jax.jit(block_cholesky, static_argnums=3)
+    C, G = fn(jnp.asarray(D), jnp.asarray(E), jnp.asarray(live, jnp.int32), (24, 48, 72, 96))
+    np.testing.assert_allclose(np.asarray(C), np.asarray(full[0]), rtol=1e-10, atol=1e-12)
+    np.testing.assert_allclose(np.asarray(G), np.asarray(full[1]), rtol=1e-10, atol=1e-12)
+    r = rng.normal(size=N)
+    x = block_solve(C, G, jnp.asarray(r).reshape(L, k)).reshape(-1)
+    np.testing.assert_allclose(np.asarray(x), np.linalg.solve(M, r), rtol=1e-10, atol=1e-12)

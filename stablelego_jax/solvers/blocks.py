@@ -60,25 +60,63 @@ def lower_solve(C, R):
     return jnp.concatenate(X)
 
 
-def block_cholesky(D, E):
+def block_cholesky(D, E, live=None, cuts=()):
     """Factor a block-tridiagonal SPD matrix (``F = E^T``).
     Returns (C, G): C[l] lower Cholesky factor of the l-th pivot block,
     G[l] = C[l]^-1 E[l]'. One layer (``L = 1``, a dense matrix): one
     Cholesky factor and G = 0, with no triangular solve for it. Each pivot
     block's Cholesky reads its lower triangle only (:func:`lower_gram`
-    forms no more of the Schur update)."""
+    forms no more of the Schur update).
+
+    live ((L,) int, traced) and cuts (static sizes, ascending, the last
+    ``k``): the rows of layer l from ``live[l]`` on are decoupled and
+    diagonal in D[l] and empty in E (padding slots after the real ones).
+    Each layer's step (Schur update, Cholesky, ``G``) is then formed, by
+    ``lax.switch``, at the smallest cut that holds the live rows of the
+    layer and of both its neighbours, and the rest of its factor is the
+    square root of D's diagonal: the numbers of the full factor, with
+    about ``sum_l cut_l^3 / (L k^3)`` of its flops (one branch per cut
+    compiled). For an unbatched solve only: under ``vmap`` every branch
+    runs."""
     if D.shape[0] == 1:
         # the lower triangle as assembled (symmetric): symmetrising it was one more
         # transposing pass over the matrix
         return jax.lax.linalg.cholesky(D, symmetrize_input=False), jnp.zeros_like(D)
 
-    def body(Gprev, inp):
-        Dl, El = inp
+    def layer(Gprev, Dl, El):
         C = jax.lax.linalg.cholesky(Dl - lower_gram(Gprev), symmetrize_input=False)
-        G = lower_solve(C, El.T)
+        return C, lower_solve(C, El.T)
+
+    if live is None or len(cuts) < 2:
+        def body(Gprev, inp):
+            C, G = layer(Gprev, *inp)
+            return G, (C, G)
+
+        _, (C, G) = jax.lax.scan(body, jnp.zeros_like(D[0]), (D, E))
+        return C, G
+
+    k = D.shape[-1]
+
+    def branch(c):
+        def f(Gprev, Dl, El):
+            # Gprev is zero outside its previous and this layer's live rows, El outside
+            # this and the next layer's: every product stays inside the leading c rows
+            Cc, Gc = layer(Gprev[:c, :c], Dl[:c, :c], El[:c, :c])
+            rest = jnp.where(jnp.arange(k) < c, 0.0, jnp.sqrt(jnp.diagonal(Dl)))
+            return jnp.diag(rest).at[:c, :c].set(Cc), jnp.zeros_like(Dl).at[:c, :c].set(Gc)
+        return f if c < k else layer
+
+    zero = jnp.zeros((1,), live.dtype)
+    need = jnp.maximum(live, jnp.maximum(jnp.concatenate([zero, live[:-1]]), jnp.concatenate([live[1:], zero])))
+    pick = jnp.minimum(jnp.searchsorted(jnp.asarray(cuts), need), len(cuts) - 1)
+    branches = [branch(c) for c in cuts]
+
+    def cut_body(Gprev, inp):
+        Dl, El, i = inp
+        C, G = jax.lax.switch(i, branches, Gprev, Dl, El)
         return G, (C, G)
 
-    _, (C, G) = jax.lax.scan(body, jnp.zeros_like(D[0]), (D, E))
+    _, (C, G) = jax.lax.scan(cut_body, jnp.zeros_like(D[0]), (D, E, pick))
     return C, G
 
 

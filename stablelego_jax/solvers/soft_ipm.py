@@ -75,6 +75,14 @@ class BarrierOptions:
     tol: convergence tolerance on the optimality conditions (inf-norm,
       scaled units) for ``converged``.
     params: physical parameters (T, alpha, beta, ...).
+    cut: a layered problem solved alone (not under ``vmap``, where every
+      branch would run) factors each layer at the smallest multiple of
+      :data:`CUT_STEP` slots that holds the real slots of the layer and its
+      neighbours (:func:`~stablelego_jax.solvers.blocks.block_cholesky`'s
+      ``live``): the same numbers, fewer flops where layers are not full,
+      one more compiled branch per size (the 2000-placement bunny of
+      ``benchmarks/loss_scale.py``: 8% faster, 11 s more compile;
+      BENCHMARKS.md, session 42). Worth it for a problem solved many times.
     """
 
     mu: float = 1e-5
@@ -84,6 +92,11 @@ class BarrierOptions:
     compliance: float = 1e-2
     tol: float = 1e-5
     params: Params = Params()
+    cut: bool = False
+
+
+#: Slots per size of :attr:`BarrierOptions.cut` (every multiple below a layer's B, then B).
+CUT_STEP = 8
 
 
 class SoftContext(NamedTuple):
@@ -289,15 +302,19 @@ class _Lin(NamedTuple):
 class _Plan(NamedTuple):
     """Where each brick's rows go: ``pos`` (n,) its slot (``L B``: none,
     padding bricks of a layered problem), L levels of B slots (one level of
-    n slots: dense), and the assembly of W M (:func:`_plan`)."""
+    n slots: dense), the assembly of W M (:func:`_plan`), and, for
+    :attr:`BarrierOptions.cut`, each level's live rows (6 times its last
+    used slot + 1; (L,)) and the factor's sizes (else None and ())."""
 
     pos: jnp.ndarray
     L: int
     B: int
     assemble: object
+    live: jnp.ndarray | None = None
+    cuts: tuple = ()
 
 
-def _plan(ctx: SoftContext) -> _Plan:
+def _plan(ctx: SoftContext, cut: bool = False) -> _Plan:
     """The static structure of W M: dense (``ctx.slot`` None: brick b in
     slot b) or layered (``ctx.slot``, every brick's supports in the layer
     below: :func:`~stablelego_jax.solvers.problem.soft_levels`)."""
@@ -308,7 +325,13 @@ def _plan(ctx: SoftContext) -> _Plan:
         (L, B), pos = ctx.lay.shape, ctx.slot
     N = L * B
     pcb = jnp.concatenate([pos, jnp.full((1,), N, pos.dtype)])[ctx.cb]
-    return _Plan(pos, L, B, reduced_matrix(pcb, ctx.coef, ctx.normal, N, L, ctx.chunk))
+    live, cuts = None, ()
+    if cut and L > 1 and B > CUT_STEP:
+        # slots hold a level's bricks first (layer_soft); the last used one bounds them anyway
+        used = jnp.zeros((N + 1,), jnp.int32).at[pos].set(1, mode="drop")[:N].reshape(L, B)
+        live = 6 * (used * jnp.arange(1, B + 1, dtype=jnp.int32)).max(1)
+        cuts = tuple(6 * b for b in range(CUT_STEP, B, CUT_STEP)) + (6 * B,)
+    return _Plan(pos, L, B, reduced_matrix(pcb, ctx.coef, ctx.normal, N, L, ctx.chunk), live, cuts)
 
 
 def _fg(pc: _Pieces, transpose: bool):
@@ -338,7 +361,7 @@ def _factor(ctx: SoftContext, plan: _Plan, pc: _Pieces) -> _Lin:
     rho = jnp.zeros((N + 1,), dtype).at[plan.pos].set(ctx.ws / ktt, mode="drop")[:N]
     dr = jnp.ones((N + 1, 6), dtype).at[plan.pos].set(ctx.ws[:, None] / pc.ddpsi, mode="drop")[:N]
     D, E = plan.assemble(ctx.csym * theta, q, rho, dr.reshape(-1))
-    C, G = block_cholesky(D, E)
+    C, G = block_cholesky(D, E, plan.live, plan.cuts)
     return _Lin(pc=pc, C=C, G=G, ktt=ktt)
 
 
@@ -414,7 +437,7 @@ def _ipm(ctx: SoftContext, opts: BarrierOptions):
     wts = _weights(ctx, opts.params)
     n_pairs = sum(jnp.sum(o) for o in ons)
     cost = ctx.cost
-    plan = _plan(ctx)
+    plan = _plan(ctx, opts.cut)
 
     def mean_gap(s, z):
         return sum(_msk(sv * zv / w, o).sum() for sv, zv, o, w in zip(s, z, ons, wts)) / n_pairs
@@ -599,7 +622,7 @@ def _x_bwd(opts, res, ct):
     (x, (dpsi, ddpsi, _)), weights, loads, prob = res
     ctx0 = soft_context(weights, loads, prob, opts.params)
     _, pc = _barrier_system(x, ctx0, ctx0, dpsi, ddpsi, opts)
-    plan0 = _plan(ctx0)
+    plan0 = _plan(ctx0, opts.cut)
     lam, y, _ = _solve(ctx0, plan0, _factor(ctx0, plan0, pc), ct[0], transpose=True)
 
     def rfun(w, l, cc):  # R with the residual rows' price frozen
