@@ -3,7 +3,7 @@ against the dense one.
 
 Usage:
   python benchmarks/loss_scale.py [--mesh MESH] [--grid 20] [--up y]
-      [--placements N] [--solver layered|dense] [--calls 1] [--cut] [--fd 4] [--seed 0] [--json]
+      [--placements N] [--solver layered|dense] [--calls 1] [--fd 4] [--seed 0] [--json]
 
 The soft problem: the mesh voxelised at ``--grid`` (default: the Stanford
 bunny of ``../shared/meshes`` upright, ``--up y``: 20 layers), covered by
@@ -18,9 +18,9 @@ layer, then round robin), up to ``--placements`` in all; random extra loads
 :func:`stablelego_jax.solvers.problem.plan_soft` for ``--calls`` solves
 (``--solver layered``; 1: the ladder's padding, as an unknown caller
 gets; the steps of an optimisation can pay for a padding fitted to the
-problem) or padded to the ladder and solved dense (``--solver dense``);
-``--cut``: each layer factored at its own size
-(:attr:`stablelego_jax.loss.LossOptions.cut`).
+problem, and many calls also each layer factored at its own size: ``cut``
+in the JSON, :func:`stablelego_jax.solvers.problem.cut_layers`) or padded
+to the ladder and solved dense (``--solver dense``).
 
 Measured: ``compile_s`` (jit of loss + gradient, lowering and compiling),
 ``loss_grad_s`` (one loss + gradient after compile, best of ``--repeat``),
@@ -35,8 +35,6 @@ absolute terms. Prints one JSON object (``--json``) or a line.
 from __future__ import annotations
 
 import argparse
-import dataclasses
-import functools
 import json
 import os
 import resource
@@ -99,9 +97,9 @@ def soft_instance(mesh: str, grid: int, up: str, placements: int, seed: int):
     return prob, w, loads, nl
 
 
-def loss_aux(wt, ld, p, opts=OPTS):
+def loss_aux(wt, ld, p):
     """(summed brick loss, converged) of one padded soft problem."""
-    r = soft_report(wt, ld, p, opts=opts)
+    r = soft_report(wt, ld, p, opts=OPTS)
     return r.brick_loss.sum(), r.converged
 
 
@@ -133,9 +131,7 @@ def main(argv=None) -> int:
     ap.add_argument("--repeat", type=int, default=2)
     ap.add_argument("--calls", type=int, default=1,
                     help="plan the layered problem for this many solves (plan_soft: 1 keeps the ladder's padding; "
-                         "an optimisation's steps may pay for a fitted one)")
-    ap.add_argument("--cut", action="store_true",
-                    help="factor each layer at its own size (LossOptions.cut: unbatched, more compile)")
+                         "an optimisation's steps may pay for a fitted one, and for layers cut to their own size)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--batch", type=int, default=0,
                     help="instead: K problems (seeds seed..seed+K-1) of one padded shape, vmap-ed against one at a time")
@@ -163,9 +159,7 @@ def main(argv=None) -> int:
     LD[:n] = loads
 
     t0 = time.perf_counter()
-    opts = dataclasses.replace(OPTS, cut=a.cut)
-    vg = jax.jit(jax.value_and_grad(functools.partial(loss_aux, opts=opts), argnums=(0, 1), has_aux=True)) \
-        .lower(W, LD, prob).compile()
+    vg = jax.jit(jax.value_and_grad(loss_aux, argnums=(0, 1), has_aux=True)).lower(W, LD, prob).compile()
     compile_s = time.perf_counter() - t0
     times = []
     for _ in range(max(a.repeat, 1)):
@@ -194,7 +188,8 @@ def main(argv=None) -> int:
             err = min(abs(g - d) / max(abs(d), 1e-3 * scale) for d in fds)
             errs.append(err)
     out = dict(
-        mesh=os.path.basename(a.mesh), grid=a.grid, up=a.up, solver=a.solver, calls=a.calls, cut=a.cut,
+        mesh=os.path.basename(a.mesh), grid=a.grid, up=a.up, solver=a.solver, calls=a.calls,
+        cut=prob.cut is not None,
         placements=int(n), layout_bricks=int(nl), layers=int(L), max_per_layer=int(B),
         padded=[int(n_pad), int(prob.col_kind.shape[0]), int(prob.group.shape[1])]
         + ([list(map(int, prob.layers.shape))] if prob.layers is not None else []),

@@ -123,7 +123,7 @@ class LossOptions(BarrierOptions):
     """Settings of the smooth solver and the loss (hashable: a static jit argument).
 
     The solver's fields (mu, iters, centred, knob_cost, compliance, tol,
-    params, cut) are those of :class:`~stablelego_jax.solvers.soft_ipm.BarrierOptions`;
+    params) are those of :class:`~stablelego_jax.solvers.soft_ipm.BarrierOptions`;
     temperature: loss temperature tau (units of T) of the overload hinge;
     residual_smoothing: s of the smoothed |residual| in the loss (units of T).
     """

@@ -84,6 +84,14 @@ class SoftProblem(NamedTuple):
       brick pair, at most 8 per row (``m`` = none), so that the layered
       factorisation assembles one 12 x 12 block per row instead of one per
       column.
+    cut: (L,) int32 or None (with ``slot``): each layer's used slots (its
+      last used slot + 1). Set (by
+      :func:`~stablelego_jax.solvers.problem.plan_soft`, for a problem
+      solved many times), a solve factors each layer at its own size
+      (:func:`~stablelego_jax.solvers.blocks.block_cholesky`'s ``live``):
+      the same numbers, fewer flops, one compiled branch per size. Under
+      ``vmap`` every branch would run, so
+      :func:`~stablelego_jax.solvers.problem.stack_soft` drops it.
     """
 
     col_brick: np.ndarray
@@ -98,6 +106,7 @@ class SoftProblem(NamedTuple):
     slot: np.ndarray | None = None
     layers: np.ndarray | None = None
     chunk: np.ndarray | None = None
+    cut: np.ndarray | None = None
 
 
 @dataclasses.dataclass(frozen=True)

@@ -228,13 +228,13 @@ def test_zero_temperature_recovers_eq10(name):
 
 
 def test_layers_factored_at_their_own_size_give_the_same_loss_and_gradients():
-    """``LossOptions(cut=True)``: a pyramid's layers (36 ... 1 bricks in 40
-    slots) each factored at the smallest cut that holds it and its
-    neighbours give the full factorisation's loss and gradients, with a
-    1 x 8 brick on top, 6 studs out, a load hung on it, and interior weights."""
+    """A pyramid's layers (36 ... 1 bricks in 40 slots) each factored at the
+    smallest cut that holds it and its neighbours (``cut_layers``) give the
+    full factorisation's loss and gradients, with a 1 x 8 brick on top, 6
+    studs out, a load hung on it, and interior weights."""
     from stablelego_jax.generate.procedural import pyramid
     from stablelego_jax.layout import brick_layout
-    from stablelego_jax.solvers.problem import layer_soft
+    from stablelego_jax.solvers.problem import cut_layers, layer_soft
 
     pyr = pyramid(6, lean=(1, 0))
     soft = compile_soft(brick_layout(np.concatenate([pyr.pos, [[5, 0, 6]]]), np.concatenate([pyr.size, [[8, 1]]])))
@@ -242,16 +242,14 @@ def test_layers_factored_at_their_own_size_give_the_same_loss_and_gradients():
     n, N = soft.n, p.mass.shape[0]
     L, B = p.layers.shape
     assert L >= 7 and B >= 36 and 36 + 25 + 16 + 9 + 4 + 1 + 1 == n
+    cut = cut_layers(p)
+    assert cut.cut.tolist()[:7] == [36, 25, 16, 9, 4, 1, 1]
     w, loads = np.zeros(N), np.zeros(N)
     w[:n] = 1.0
     w[[20, 40, 50]] = [0.6, 0.8, 0.3]
     loads[n - 1] = 0.4
-    got = []
-    for cut in (False, True):
-        opts = LossOptions(cut=cut)
-        f = jax.jit(jax.value_and_grad(lambda w, l, q: stability_loss(w, l, q, opts=opts), argnums=(0, 1)))
-        got.append(f(w, loads, p))
-    (v0, (gw0, gl0)), (v1, (gw1, gl1)) = got
+    f = jax.jit(jax.value_and_grad(lambda w, l, q: stability_loss(w, l, q, opts=OPTS), argnums=(0, 1)))
+    (v0, (gw0, gl0)), (v1, (gw1, gl1)) = f(w, loads, p), f(w, loads, cut)
     assert float(v0) > 1e-3  # the load pulls the top brick off: above the barrier's floor
     assert abs(float(v1) - float(v0)) <= 1e-9 * abs(float(v0))
     # to the solver's own reproducibility: on this problem the dense and the full layered

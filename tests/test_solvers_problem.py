@@ -453,6 +453,41 @@ def test_small_soft_problems_of_one_brick_rung_share_one_shape():
     np.testing.assert_allclose(losses[0], losses[1], rtol=1e-7)
 
 
+def test_plan_soft_cuts_layers_when_many_solves_pay_for_the_branches():
+    """A layered problem whose layers are not full (a tower of unit bricks
+    narrowing from 6 x 6 to 4 x 4 to 2 x 2, four layers each): many solves
+    get each layer's used slots in ``cut`` (its last used slot + 1), one
+    solve does not; ``pad_soft`` keeps it, ``stack_soft`` drops it (a batch
+    never cuts), ``layer_soft`` clears it, and a dense problem cannot be
+    cut."""
+    from stablelego_jax.layout import brick_layout
+    from stablelego_jax.solvers.blocks import layer_cuts
+    from stablelego_jax.solvers.problem import (CUT_BRANCH_S, cut_layers, cut_saving, layer_soft, plan_soft,
+                                                stack_soft)
+
+    widths = [6] * 4 + [4] * 4 + [2] * 4
+    pos = [(x, y, z) for z, w in enumerate(widths) for x in range(3 - w // 2, 3 + w // 2)
+           for y in range(3 - w // 2, 3 + w // 2)]
+    p = compile_soft(brick_layout(pos, np.ones((len(pos), 2), np.int64))).problem
+    one = plan_soft(p)
+    assert one.layers is not None and one.cut is None
+    # pays for the branches' compile after this many solves (fitted: the same layers and slots here)
+    calls = int(CUT_BRANCH_S * len(layer_cuts(one.layers.shape[1])) / cut_saving(one)) + 1
+    many = plan_soft(p, calls=calls)
+    L, B = many.layers.shape
+    assert (L, B) == one.layers.shape and many.cut.tolist() == [w * w for w in widths]
+    assert plan_soft(p, calls=calls // 2).cut is None
+    slot = np.asarray(many.slot)
+    for l, u in enumerate(many.cut):  # bricks fill each layer's first slots
+        used = np.sort(slot[(slot // B == l) & (slot < L * B)] % B)
+        assert used.tolist() == list(range(u))
+    assert pad_soft(many, many.mass.shape[0] + 8).cut is many.cut
+    assert stack_soft([many, many]).cut is None
+    assert layer_soft(many).cut is None
+    with pytest.raises(ValueError, match="layered"):
+        cut_layers(compile_soft(cuboid(2, 2, 1)).problem)
+
+
 @pytest.mark.usefixtures("x64")
 def test_padded_scene_positions_give_the_same_position_gradient():
     """pad_positions pads a scene's positions as plan_soft pads its soft

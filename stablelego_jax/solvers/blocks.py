@@ -20,11 +20,22 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-__all__ = ["block_cholesky", "block_solve", "cut_cholesky", "lower_gram", "lower_solve"]
+__all__ = ["block_cholesky", "block_solve", "cut_cholesky", "layer_cuts", "lower_gram", "lower_solve"]
 
 #: rows of the diagonal pieces :func:`lower_solve` inverts (every block size
 #: ``6 B``, B a multiple of 8, is a multiple of it)
 PIECE = 48
+
+
+#: Slots between the sizes :func:`layer_cuts` offers.
+CUT_STEP = 8
+
+
+def layer_cuts(B: int) -> tuple:
+    """The sizes (rows, 6 per slot) :func:`block_cholesky` may cut a layer
+    of ``B`` slots to: every multiple of :data:`CUT_STEP` slots below B,
+    then B (one compiled branch each)."""
+    return tuple(6 * b for b in range(CUT_STEP, B, CUT_STEP)) + (6 * B,)
 
 
 def lower_gram(G):

@@ -16,6 +16,7 @@ import numpy as np
 from ..model import KNOB, NORMAL, SIDE, ForceModel, Params
 from ..score import equilibrium, equilibrium_t
 from ..soft import ScenePositions, SoftProblem
+from .blocks import layer_cuts
 
 __all__ = [
     "merge_plans",
@@ -38,6 +39,9 @@ __all__ = [
     "pad_positions",
     "stack_soft",
     "layer_soft",
+    "cut_layers",
+    "cut_saving",
+    "CUT_BRANCH_S",
     "soft_levels",
     "soft_layer_plan",
     "soft_plan",
@@ -240,6 +244,7 @@ def pad_soft(prob: SoftProblem, n_pad: int | None = None, m_pad: int | None = No
         slot=slot,
         layers=prob.layers,
         chunk=chunk,
+        cut=prob.cut,
     )
 
 
@@ -269,7 +274,9 @@ def pad_positions(geo: ScenePositions, n_pad: int, m_pad: int) -> ScenePositions
 
 def stack_soft(problems: Sequence[SoftProblem]) -> SoftProblem:
     """Stack equally padded (and equally layered) problems along a new
-    leading (batch) axis."""
+    leading (batch) axis, without their ``cut`` (under ``vmap`` every
+    branch of a cut factor would run)."""
+    problems = [p._replace(cut=None) for p in problems]
     return SoftProblem(*[None if a[0] is None else np.stack(a) for a in zip(*problems)])
 
 
@@ -321,7 +328,43 @@ def layer_soft(prob: SoftProblem, L: int | None = None, B: int | None = None) ->
     rank[order] = np.arange(len(idx)) - np.repeat(np.cumsum(counts) - counts, counts)
     slot = np.full(len(z), L * B, np.int32)
     slot[idx] = zr * B + rank
-    return prob._replace(slot=slot, layers=np.zeros((L, B), np.int8), chunk=pair_chunks(prob))
+    return prob._replace(slot=slot, layers=np.zeros((L, B), np.int8), chunk=pair_chunks(prob), cut=None)
+
+
+def cut_layers(prob: SoftProblem) -> SoftProblem:
+    """The layered problem (:func:`layer_soft`) with ``cut`` set: each
+    layer's used slots, so that a solve factors each layer at its own size
+    (:class:`~stablelego_jax.soft.SoftProblem`)."""
+    if prob.slot is None:
+        raise ValueError("only a layered problem (layer_soft) can be cut by layers")
+    L, B = prob.layers.shape
+    slot = np.asarray(prob.slot)
+    slot = slot[slot < L * B]
+    cut = np.zeros(L, np.int32)
+    np.maximum.at(cut, slot // B, slot % B + 1)
+    return prob._replace(cut=cut)
+
+
+def cut_saving(prob: SoftProblem, solves: float | None = None) -> float:
+    """Rough seconds that ``cut`` (:func:`cut_layers`) saves a layered soft
+    problem over ``solves`` factorisations (default :data:`SOFT_SOLVES`, a
+    loss and its gradient): half the factor flops the cuts leave out, at
+    :func:`plan_seconds`' price of a layer's factor. Half: the branches
+    copy their blocks in and out (the 2000-placement bunny, 20 x 120
+    slots: 0.79 of the flops, 7-11% of the solve; session 42)."""
+    L, B = prob.layers.shape
+    used = cut_layers(prob).cut
+    # a layer's step reads its neighbours' slots too (blocks.block_cholesky)
+    need = np.maximum(used, np.maximum(np.r_[0, used[:-1]], np.r_[used[1:], 0]))
+    sizes = np.asarray(layer_cuts(B))
+    c = sizes[np.minimum(np.searchsorted(sizes, 6 * need), len(sizes) - 1)].astype(float)
+    solves = SOFT_SOLVES if solves is None else solves
+    return float(0.5 * solves * LAYER_K3_S * ((6.0 * B) ** 3 * L - (c ** 3).sum()))
+
+
+#: Compile seconds of each size a cut factor may take (:func:`~stablelego_jax.solvers.blocks.layer_cuts`):
+#: 10-19 s more for the 15 sizes of 120 slots (the loss and its gradient, which factors twice; session 42).
+CUT_BRANCH_S = 1.0
 
 
 #: Columns per row of :func:`pair_chunks`.
@@ -416,7 +459,13 @@ def plan_soft(prob: SoftProblem, calls: int = 1) -> SoftProblem:
     (``SOFT_COMPILE_S``): a fitted shape is shared with no other problem.
     The 2000-placement bunny of ``benchmarks/loss_scale.py``: 20 layers of
     120 slots and 262400 columns instead of 128 and 293752, loss +
-    gradient 1.17x faster (BENCHMARKS.md, session 30)."""
+    gradient 1.17x faster (BENCHMARKS.md, session 30).
+
+    A layered problem is also cut (:func:`cut_layers`: each layer factored
+    at its own size) when the time that saves over ``calls`` solves
+    (:func:`cut_saving`) exceeds the compile of its sizes
+    (:data:`CUT_BRANCH_S` each). The same bunny, fitted: 9.8-10.2 s
+    against 10.6-11.5 s (session 42)."""
 
     def up(k, q):
         return -(-k // q) * q
@@ -446,7 +495,10 @@ def plan_soft(prob: SoftProblem, calls: int = 1) -> SoftProblem:
                          - plan_seconds(ladder, shape[1], SOFT_SOLVES))
         if extra <= SOFT_SHARE * SOFT_COMPILE_S:
             shape, c_pad = shared[:3], shared[3]
-    return pad_soft(prob, *(fshape if fitted else shape), c_pad=c_pad)
+    prob = pad_soft(prob, *(fshape if fitted else shape), c_pad=c_pad)
+    if prob.layers is not None and calls * cut_saving(prob) > CUT_BRANCH_S * len(layer_cuts(prob.layers.shape[1])):
+        prob = cut_layers(prob)
+    return prob
 
 
 #: Factorisations of one soft solve with its gradient (15-17 interior-point
@@ -786,6 +838,11 @@ def compile_seconds(key: tuple) -> float:
 COLUMNS_PER_BRICK = 36
 
 
+#: :func:`plan_seconds`' seconds per cubed row of a layer's factor (a Cholesky, a
+#: triangular solve and the Schur product).
+LAYER_K3_S = 6.88e-11
+
+
 def plan_seconds(key: tuple, m_pad: int | None = None, iters: float | None = None) -> float:
     """Rough seconds one layout of bucket ``key`` with ``m_pad`` columns
     (default ``COLUMNS_PER_BRICK`` per padded brick) takes in the
@@ -812,7 +869,7 @@ def plan_seconds(key: tuple, m_pad: int | None = None, iters: float | None = Non
         per_k = 30.2e-6 + 3.18e-9 * k * k + 1.24e-11 * k ** 3
     else:
         L, k, n_b = key[1], 6 * key[2], key[1] * key[2]
-        per_k = 60.0e-6 + L * (9.5e-6 + 6.11e-9 * k * k + 6.88e-11 * k ** 3)
+        per_k = 60.0e-6 + L * (9.5e-6 + 6.11e-9 * k * k + LAYER_K3_S * k ** 3)
     if m_pad is None:
         m_pad = COLUMNS_PER_BRICK * n_b
     if iters is None:

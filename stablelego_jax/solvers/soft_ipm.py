@@ -40,7 +40,7 @@ from ..model import KNOB, NORMAL, Params
 from ..runtime import x64
 from ..score import bottom_sum, equilibrium, equilibrium_t
 from ..soft import SoftProblem
-from .blocks import block_cholesky, block_solve
+from .blocks import block_cholesky, block_solve, layer_cuts
 from .interior import boundary_step, centring, iterate
 from .newton import reduced_matrix
 from .problem import row_scale, scaled_wrenches
@@ -75,14 +75,6 @@ class BarrierOptions:
     tol: convergence tolerance on the optimality conditions (inf-norm,
       scaled units) for ``converged``.
     params: physical parameters (T, alpha, beta, ...).
-    cut: a layered problem solved alone (not under ``vmap``, where every
-      branch would run) factors each layer at the smallest multiple of
-      :data:`CUT_STEP` slots that holds the real slots of the layer and its
-      neighbours (:func:`~stablelego_jax.solvers.blocks.block_cholesky`'s
-      ``live``): the same numbers, fewer flops where layers are not full,
-      one more compiled branch per size (the 2000-placement bunny of
-      ``benchmarks/loss_scale.py``: 8% faster, 11 s more compile;
-      BENCHMARKS.md, session 42). Worth it for a problem solved many times.
     """
 
     mu: float = 1e-5
@@ -92,11 +84,6 @@ class BarrierOptions:
     compliance: float = 1e-2
     tol: float = 1e-5
     params: Params = Params()
-    cut: bool = False
-
-
-#: Slots per size of :attr:`BarrierOptions.cut` (every multiple below a layer's B, then B).
-CUT_STEP = 8
 
 
 class SoftContext(NamedTuple):
@@ -119,6 +106,7 @@ class SoftContext(NamedTuple):
     slot: jnp.ndarray | None = None  # (n,) place l B + s in the layered factorisation (None: dense)
     lay: jnp.ndarray | None = None  # (L, B): the layered factorisation's shape
     chunk: jnp.ndarray | None = None  # (C, W) columns grouped by brick pair (m: none)
+    cut: jnp.ndarray | None = None  # (L,) each layer's used slots: factor each at its own size
     ws: jnp.ndarray | None = None  # (n,) row scale of each brick (its weight, >= 1e-30; 1 for padding)
     csym: jnp.ndarray | None = None  # (m,) column scale c_p: A~ = diag(1/ws) A diag(c)
     osym: jnp.ndarray | None = None  # (m,) o0 from the row scales (o0 where no weight is clamped)
@@ -157,6 +145,7 @@ def soft_context(weights, loads, prob: SoftProblem, params: Params) -> SoftConte
                 group=jnp.asarray(prob.group), cost=cost,
                 slot=None if prob.slot is None else jnp.asarray(prob.slot), lay=prob.layers,
                 chunk=None if prob.chunk is None else jnp.asarray(prob.chunk),
+                cut=None if prob.cut is None else jnp.asarray(prob.cut, jnp.int32),
                 ws=ws, csym=ws_ext[b0] * osym, osym=osym)
 
 
@@ -302,9 +291,10 @@ class _Lin(NamedTuple):
 class _Plan(NamedTuple):
     """Where each brick's rows go: ``pos`` (n,) its slot (``L B``: none,
     padding bricks of a layered problem), L levels of B slots (one level of
-    n slots: dense), the assembly of W M (:func:`_plan`), and, for
-    :attr:`BarrierOptions.cut`, each level's live rows (6 times its last
-    used slot + 1; (L,)) and the factor's sizes (else None and ())."""
+    n slots: dense), the assembly of W M (:func:`_plan`), and, for a
+    problem with ``cut`` (:class:`~stablelego_jax.soft.SoftProblem`), each
+    level's live rows ((L,)) and the sizes its factor may be cut to (else
+    None and ())."""
 
     pos: jnp.ndarray
     L: int
@@ -314,7 +304,7 @@ class _Plan(NamedTuple):
     cuts: tuple = ()
 
 
-def _plan(ctx: SoftContext, cut: bool = False) -> _Plan:
+def _plan(ctx: SoftContext) -> _Plan:
     """The static structure of W M: dense (``ctx.slot`` None: brick b in
     slot b) or layered (``ctx.slot``, every brick's supports in the layer
     below: :func:`~stablelego_jax.solvers.problem.soft_levels`)."""
@@ -326,11 +316,8 @@ def _plan(ctx: SoftContext, cut: bool = False) -> _Plan:
     N = L * B
     pcb = jnp.concatenate([pos, jnp.full((1,), N, pos.dtype)])[ctx.cb]
     live, cuts = None, ()
-    if cut and L > 1 and B > CUT_STEP:
-        # slots hold a level's bricks first (layer_soft); the last used one bounds them anyway
-        used = jnp.zeros((N + 1,), jnp.int32).at[pos].set(1, mode="drop")[:N].reshape(L, B)
-        live = 6 * (used * jnp.arange(1, B + 1, dtype=jnp.int32)).max(1)
-        cuts = tuple(6 * b for b in range(CUT_STEP, B, CUT_STEP)) + (6 * B,)
+    if ctx.cut is not None and L > 1:
+        live, cuts = 6 * ctx.cut, layer_cuts(B)
     return _Plan(pos, L, B, reduced_matrix(pcb, ctx.coef, ctx.normal, N, L, ctx.chunk), live, cuts)
 
 
@@ -437,7 +424,7 @@ def _ipm(ctx: SoftContext, opts: BarrierOptions):
     wts = _weights(ctx, opts.params)
     n_pairs = sum(jnp.sum(o) for o in ons)
     cost = ctx.cost
-    plan = _plan(ctx, opts.cut)
+    plan = _plan(ctx)
 
     def mean_gap(s, z):
         return sum(_msk(sv * zv / w, o).sum() for sv, zv, o, w in zip(s, z, ons, wts)) / n_pairs
@@ -622,7 +609,7 @@ def _x_bwd(opts, res, ct):
     (x, (dpsi, ddpsi, _)), weights, loads, prob = res
     ctx0 = soft_context(weights, loads, prob, opts.params)
     _, pc = _barrier_system(x, ctx0, ctx0, dpsi, ddpsi, opts)
-    plan0 = _plan(ctx0, opts.cut)
+    plan0 = _plan(ctx0)
     lam, y, _ = _solve(ctx0, plan0, _factor(ctx0, plan0, pc), ct[0], transpose=True)
 
     def rfun(w, l, cc):  # R with the residual rows' price frozen
