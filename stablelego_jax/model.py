@@ -257,12 +257,13 @@ def compile_layout(layout: Layout | Scene, params: Params = Params()) -> ForceMo
     kx, ky = (cx[conn] + 0.5) * L, (cy[conn] + 0.5) * L  # knob centre (m)
     kz = cz[conn] * Hl  # interface plane (m)
 
-    cols_brick, cols_coef, cols_kind = [], [], []
+    cols_brick, cols_force, cols_point, cols_kind = [], [], [], []
 
     def add(bricks_pair, forces, points, kind):
         # forces: (k, 3) unit force on slot 0 (slot 1 gets the opposite); points (k, 3) m
         cols_brick.append(bricks_pair)
-        cols_coef.append(column_wrenches(bricks_pair, forces, points, centre))
+        cols_force.append(forces)
+        cols_point.append(points)
         cols_kind.append(np.full(len(forces), kind, np.int8))
 
     pair = np.stack([c_up, c_lo], axis=1)
@@ -302,7 +303,8 @@ def compile_layout(layout: Layout | Scene, params: Params = Params()) -> ForceMo
         add(np.stack([b, a], axis=1), f, face, SIDE)
 
     col_brick = np.concatenate(cols_brick).astype(np.int32)
-    col_coef = np.concatenate(cols_coef)
+    # the wrenches of all columns at once (small layouts: numpy's per-call cost, not the arithmetic)
+    col_coef = column_wrenches(col_brick, np.concatenate(cols_force), np.concatenate(cols_point), centre)
     col_kind = np.concatenate(cols_kind)
     m = len(col_kind)
 
