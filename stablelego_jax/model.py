@@ -137,25 +137,30 @@ class ForceModel:
         grp = np.full((n_pad, P), m_pad, np.int32)
         old = self.group
         grp[: old.shape[0], : old.shape[1]] = np.where(old >= self.m_pad, m_pad, old)
-        grav = np.zeros((n_pad, 6))
-        grav[: self.n_pad] = self.gravity
-        bm = np.zeros(n_pad, bool)
-        bm[: self.n_pad] = self.brick_mask
-        lay = None
-        if self.layer is not None:
-            lay = np.full(n_pad, -1, np.int32)
-            lay[: self.n_pad] = self.layer
-        cen = None
-        if self.centre is not None:
-            cen = np.zeros((n_pad, 3))
-            cen[: self.n_pad] = self.centre
-        mem = None
-        if self.member is not None:
-            mem = np.zeros(n_pad, np.int32)
-            mem[: self.n_pad] = self.member
         return dataclasses.replace(
-            self, col_brick=cb.astype(np.int32), col_coef=coef, col_kind=kind, col_mask=mask,
-            group=grp, gravity=grav, brick_mask=bm, layer=lay, centre=cen, member=mem,
+            self.bricks_moved(n_pad, np.arange(self.n_pad)), col_brick=cb.astype(np.int32), col_coef=coef,
+            col_kind=kind, col_mask=mask, group=grp,
+        )
+
+    def bricks_moved(self, n_new: int, rows: np.ndarray) -> "ForceModel":
+        """The per-brick arrays (gravity, brick_mask, layer, centre, member)
+        in a numbering of ``n_new`` bricks: brick ``i`` at ``rows[i]`` (the
+        first ``len(rows)`` bricks; the others dropped), every other place a
+        padding brick (no weight, not real, layer -1). Columns and groups
+        are the caller's to renumber (:meth:`pad`,
+        :func:`~stablelego_jax.solvers.problem.to_layered`)."""
+
+        def moved(a, fill, dtype):
+            if a is None:
+                return None
+            out = np.full((n_new,) + a.shape[1:], fill, dtype)
+            out[rows] = a[: len(rows)]
+            return out
+
+        return dataclasses.replace(
+            self, gravity=moved(self.gravity, 0.0, float), brick_mask=moved(self.brick_mask, False, bool),
+            layer=moved(self.layer, -1, np.int32), centre=moved(self.centre, 0.0, float),
+            member=moved(self.member, 0, np.int32),
         )
 
 

@@ -655,26 +655,11 @@ def to_layered(model: ForceModel, L: int, B: int, levels: np.ndarray | None = No
     remap = np.full(model.n_pad + 1, n_new, np.int64)  # padding bricks / sink -> sink
     remap[:n] = new
     cb = remap[np.minimum(model.col_brick, model.n_pad)]
-    grav = np.zeros((n_new, 6))
-    grav[new] = model.gravity[:n]
     group = np.full((n_new, model.group.shape[1]), model.m_pad, np.int32)
     group[new] = model.group[:n]
-    bm = np.zeros(n_new, bool)
-    bm[new] = True
     lay = np.full(n_new, -1, np.int32)
     lay[new] = z
-    cen = None
-    if model.centre is not None:
-        cen = np.zeros((n_new, 3))
-        cen[new] = model.centre[:n]
-    mem = None
-    if model.member is not None:
-        mem = np.zeros(n_new, np.int32)
-        mem[new] = model.member[:n]
-    return dataclasses.replace(
-        model, col_brick=cb.astype(np.int32), gravity=grav, group=group, brick_mask=bm, layer=lay, centre=cen,
-        member=mem,
-    )
+    return dataclasses.replace(model.bricks_moved(n_new, new), col_brick=cb.astype(np.int32), group=group, layer=lay)
 
 
 def _pad_chunks(c: np.ndarray, c_pad: int | None, m: int) -> np.ndarray:
