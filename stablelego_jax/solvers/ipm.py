@@ -152,8 +152,9 @@ def _system(prob: Problem, params: Params, opts: IPMOptions) -> dict:
     # one dense block solved alone: factor only the leading rows of the real bricks
     # (padding bricks come last), at the smallest of the ladder's sizes that holds them
     cut = opts.cut and L == 1 and prob.supports is None and n > CUT_MIN
-    live = 6 * jnp.max(jnp.where(prob.brick_mask, jnp.arange(1, n + 1), 0))
-    cuts = tuple(6 * r for r in ladder(n) if r >= CUT_MIN)  # ends with n
+    if cut:
+        live = 6 * jnp.max(jnp.where(prob.brick_mask, jnp.arange(1, n + 1), 0))
+        cuts = tuple(6 * r for r in ladder(n) if r >= CUT_MIN)  # ends with n
 
     # the blocks of M for any weights (static scatter plan; :mod:`.newton`)
     assemble = reduced_matrix(prob.col_brick, coef, (kind == NORMAL) & cmask, n, L, prob.chunks,
