@@ -464,7 +464,7 @@ def plan_soft(prob: SoftProblem, calls: int = 1) -> SoftProblem:
     A layered problem is also cut (:func:`cut_layers`: each layer factored
     at its own size) when the time that saves over ``calls`` solves
     (:func:`cut_saving`) exceeds the compile of its sizes
-    (:data:`CUT_BRANCH_S` each). The same bunny, fitted: 9.8-10.2 s
+    (:data:`CUT_BRANCH_S` each). The same bunny, fitted: 9.6-10.5 s
     against 10.6-11.5 s (session 42)."""
 
     def up(k, q):
