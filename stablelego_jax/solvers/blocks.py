@@ -20,7 +20,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-__all__ = ["block_cholesky", "block_solve", "cut_cholesky", "layer_cuts", "lower_gram", "lower_solve"]
+__all__ = ["block_cholesky", "block_solve", "cut_cholesky", "layer_cuts", "layer_picks", "lower_gram", "lower_solve"]
 
 #: rows of the diagonal pieces :func:`lower_solve` inverts (every block size
 #: ``6 B``, B a multiple of 8, is a multiple of it)
@@ -36,6 +36,17 @@ def layer_cuts(B: int) -> tuple:
     of ``B`` slots to: every multiple of :data:`CUT_STEP` slots below B,
     then B (one compiled branch each)."""
     return tuple(6 * b for b in range(CUT_STEP, B, CUT_STEP)) + (6 * B,)
+
+
+def layer_picks(live, cuts, xp=jnp):
+    """(L,) index into ``cuts`` of the size :func:`block_cholesky` forms
+    each layer's step at: the smallest cut that holds the live rows of the
+    layer and of both its neighbours (the Schur product reads the previous
+    layer's rows, ``G`` the next one's). live (L,) int; xp: jax.numpy
+    (traced) or numpy (a planner's estimate)."""
+    zero = xp.zeros((1,), live.dtype)
+    need = xp.maximum(live, xp.maximum(xp.concatenate([zero, live[:-1]]), xp.concatenate([live[1:], zero])))
+    return xp.minimum(xp.searchsorted(xp.asarray(cuts), need), len(cuts) - 1)
 
 
 def lower_gram(G):
@@ -84,7 +95,7 @@ def block_cholesky(D, E, live=None, cuts=()):
     diagonal in D[l] and empty in E (padding slots after the real ones).
     Each layer's step (Schur update, Cholesky, ``G``) is then formed, by
     ``lax.switch``, at the smallest cut that holds the live rows of the
-    layer and of both its neighbours, and the rest of its factor is the
+    layer and of both its neighbours (:func:`layer_picks`), and the rest of its factor is the
     square root of D's diagonal: the numbers of the full factor, with
     about ``sum_l cut_l^3 / (L k^3)`` of its flops (one branch per cut
     compiled). For an unbatched solve only: under ``vmap`` every branch
@@ -117,9 +128,7 @@ def block_cholesky(D, E, live=None, cuts=()):
             return jnp.diag(rest).at[:c, :c].set(Cc), jnp.zeros_like(Dl).at[:c, :c].set(Gc)
         return f if c < k else layer
 
-    zero = jnp.zeros((1,), live.dtype)
-    need = jnp.maximum(live, jnp.maximum(jnp.concatenate([zero, live[:-1]]), jnp.concatenate([live[1:], zero])))
-    pick = jnp.minimum(jnp.searchsorted(jnp.asarray(cuts), need), len(cuts) - 1)
+    pick = layer_picks(live, cuts)
     branches = [branch(c) for c in cuts]
 
     def cut_body(Gprev, inp):

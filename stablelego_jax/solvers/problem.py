@@ -16,7 +16,7 @@ import numpy as np
 from ..model import KNOB, NORMAL, SIDE, ForceModel, Params
 from ..score import equilibrium, equilibrium_t
 from ..soft import ScenePositions, SoftProblem
-from .blocks import layer_cuts
+from .blocks import layer_cuts, layer_picks
 
 __all__ = [
     "merge_plans",
@@ -353,11 +353,8 @@ def cut_saving(prob: SoftProblem, solves: float | None = None) -> float:
     copy their blocks in and out (the 2000-placement bunny, 20 x 120
     slots: 0.79 of the flops, 7-11% of the solve; session 42)."""
     L, B = prob.layers.shape
-    used = cut_layers(prob).cut
-    # a layer's step reads its neighbours' slots too (blocks.block_cholesky)
-    need = np.maximum(used, np.maximum(np.r_[0, used[:-1]], np.r_[used[1:], 0]))
     sizes = np.asarray(layer_cuts(B))
-    c = sizes[np.minimum(np.searchsorted(sizes, 6 * need), len(sizes) - 1)].astype(float)
+    c = sizes[layer_picks(6 * cut_layers(prob).cut, sizes, np)].astype(float)
     solves = SOFT_SOLVES if solves is None else solves
     return float(0.5 * solves * LAYER_K3_S * ((6.0 * B) ** 3 * L - (c ** 3).sum()))
 
