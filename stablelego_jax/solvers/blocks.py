@@ -142,9 +142,9 @@ def block_cholesky(D, E, live=None, cuts=()):
 
 def cut_cholesky(D, P, live, cuts):
     """:func:`block_cholesky` of one dense block ``M = D[0] + P' P`` (D (1,
-    k, k), P (n, k)) whose rows from ``live`` on (a traced count) are
-    decoupled and diagonal in D and empty in P (padding bricks after the
-    real ones): the product and the factor are formed for the smallest cut
+    k, k), P (n, k), or None: ``M = D[0]``) whose rows from ``live`` on (a
+    traced count) are decoupled and diagonal in D and empty in P (padding
+    bricks after the real ones): the product and the factor are formed for the smallest cut
     of ``cuts`` (static sizes, ascending, the last ``k``) that holds
     ``live`` rows, by ``lax.switch``, and the rest of the factor is the
     square root of D's diagonal. A 57-brick layout padded to 120 bricks
@@ -155,8 +155,11 @@ def cut_cholesky(D, P, live, cuts):
 
     def branch(c):
         def f(D, P, rest):
-            Pc = P[: c // 6, :c]
-            Cc = jax.lax.linalg.cholesky(D[0, :c, :c] + (Pc.T @ Pc).T, symmetrize_input=False)
+            if P is None:  # the rank-one terms are in D already
+                Cc = jax.lax.linalg.cholesky(D[0, :c, :c], symmetrize_input=False)
+            else:
+                Pc = P[: c // 6, :c]
+                Cc = jax.lax.linalg.cholesky(D[0, :c, :c] + (Pc.T @ Pc).T, symmetrize_input=False)
             C = jnp.diag(jnp.where(jnp.arange(k) < c, 0.0, rest))
             return C.at[:c, :c].set(Cc)
         return f

@@ -151,7 +151,7 @@ def _system(prob: Problem, params: Params, opts: IPMOptions) -> dict:
 
     # one dense block solved alone: factor only the leading rows of the real bricks
     # (padding bricks come last), at the smallest of the ladder's sizes that holds them
-    cut = opts.cut and L == 1 and prob.supports is None and n > CUT_MIN
+    cut = opts.cut and L == 1 and n > CUT_MIN
     if cut:
         live = 6 * jnp.max(jnp.where(prob.brick_mask, jnp.arange(1, n + 1), 0))
         cuts = tuple(6 * r for r in ladder(n) if r >= CUT_MIN)  # ends with n
@@ -206,10 +206,11 @@ def _system(prob: Problem, params: Params, opts: IPMOptions) -> dict:
         # added on the diagonal in place (a full pass over a dense 720-row block was
         # a tenth of its iteration)
         i = jnp.arange(k6)
-        if cut:
+        if cut and prob.supports is None:  # the rank-one terms as a factor for the cut
             Dm, Em, P = assemble(e, q, 1.0 / gam, dr, split=True)
             dg = Dm[:, i, i] + (P * P).sum(0)
-        else:
+        else:  # the whole matrix in D (the rank-one terms by :mod:`.newton`'s assemblies)
+            P = None
             Dm, Em = assemble(e, q, 1.0 / gam, dr)
             dg = Dm[:, i, i]
         Dm = Dm.at[:, i, i].add(opts.reg_rel * dg + opts.reg_abs * (1.0 + dg.max()))

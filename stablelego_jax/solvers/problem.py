@@ -67,6 +67,8 @@ __all__ = [
     "solve_plan",
     "fit_plan",
     "plan_problem",
+    "dense_supports",
+    "DENSE_SUPPORTS",
     "row_scale",
     "scaled_wrenches",
     "operators",
@@ -1012,7 +1014,24 @@ def plan_problem(model: ForceModel, key: tuple, m_pad: int, p_pad: int,
             return fm, layered_problem(to_layered(fm, key[1], key[2], lv), key[1], c_pad, supports=key[3])
         return fm, layered_problem(to_layered(fm, key[1], key[2]), key[1], c_pad)
     fm = model.pad(key[1], m_pad, p_pad)
-    return fm, layered_problem(fm, 1, c_pad)
+    return fm, layered_problem(fm, 1, c_pad, supports=dense_supports(fm))
+
+
+#: Support slots per brick of a dense problem (:func:`dense_supports`).
+DENSE_SUPPORTS = 8
+
+
+def dense_supports(model: ForceModel) -> int:
+    """Support slots per brick of a dense problem: :data:`DENSE_SUPPORTS`,
+    or the next of :data:`SUPPORT_RUNGS` for a layout with more. Dense
+    problems assemble each brick's rank-one term (its largest drag) from
+    its supports, one (6 (K + 1))^2 piece a brick, instead of the product
+    of an (n, 6 n) matrix with itself: one core, the small set's layouts
+    solved alone, 0.73-0.82x the time an iteration where the factor is cut
+    (41-120 bricks), 0.94x at 25-40, the same at 9-24, 1.08x at 1-8; every
+    shape compiled 0.2-0.4 s faster (BENCHMARKS.md, issue 17, session 42)."""
+    k = support_count(model)
+    return DENSE_SUPPORTS if k <= DENSE_SUPPORTS else next((r for r in SUPPORT_RUNGS if r >= k), -(-k // 16) * 16)
 
 
 # --------------------------------------------------------------- operators
