@@ -24,7 +24,9 @@ the layers: ``O(L (6 B)^3)`` instead of ``O((6 n)^3)``. ``L = 1`` is the
 dense case. Wide, low layouts are numbered by vertical slabs instead
 (:func:`~stablelego_jax.solvers.problem.slab_levels`; ``prob.supports``
 set): a brick's supports may then lie in its own slab or either next one,
-and its rank-one term is assembled brick by brick from its supports.
+and its rank-one term is assembled brick by brick from its supports, as
+it is in dense problems
+(:func:`~stablelego_jax.solvers.problem.dense_supports`).
 Iteration counts are 20-50 whatever the layout (no long first-order
 tails), so a ``vmap``-ed batch finishes together.
 

@@ -18,14 +18,16 @@ bricks under it), ``rho`` (n,) and ``dr`` (6 n,) diagonal terms.
 joining slots of one level or two adjacent ones. Three assemblies, by
 where a brick's supports (the bricks under its NORMAL columns) lie:
 
-* one block (``L = 1``): the bricks' vectors ``A q_b`` as an (n, 6 n)
-  matrix S, ``S' diag(rho) S``;
+* one block (``L = 1``) without ``supports``: the bricks' vectors
+  ``A q_b`` as an (n, 6 n) matrix S, ``S' diag(rho) S`` (the soft
+  problems; the verdict LP's dense problems carry supports,
+  :func:`~stablelego_jax.solvers.problem.dense_supports`);
 * layers (every support in the level just below its brick's): a brick's own
   part of ``A q_b`` is a 6 x 6 block on the diagonal, its product with the
   supports' part an outer product, so one product over each level (the
   supports' part with itself) is all the matrix work;
-* slabs (``supports`` given: a brick's supports may lie in any level next to
-  its own): each brick's vector compacted to its own part and ``K``
+* slabs and dense problems (``supports`` given: a brick's supports may lie
+  in any level next to its own): each brick's vector compacted to its own part and ``K``
   supports' parts, one ``(6 (K + 1))^2`` piece a brick, placed in the same
   scatter as the columns' pieces.
 """
