@@ -631,3 +631,25 @@ def test_a_pack_that_does_not_converge_is_solved_layout_by_layout():
         assert not a.converged and a.iters == alone.iters == 4
         np.testing.assert_array_equal(a.forces, alone.forces)
         assert a.time_s > 0
+
+
+@pytest.mark.usefixtures("x64")
+def test_a_batch_of_dense_problems_solves_them_as_they_are_solved_alone():
+    """batch_solver_fn: dense problems (planned with support tables) in a
+    batch of two (the product of the rank-one terms) and one at a time (cut,
+    the supports' pieces) give the same forces and objectives."""
+    import jax
+
+    from stablelego_jax.batch import batch_solver_fn
+    from stablelego_jax.model import Params, compile_layout
+    from stablelego_jax.solvers import ipm
+    from stablelego_jax.solvers.problem import plan_problem, stack_problems
+
+    probs = [plan_problem(compile_layout(lay), ("dense", 48), 1024, 32, 64)[1] for lay in (stairs(6), tower(5))]
+    assert all(p.supports is not None for p in probs)
+    fn = jax.jit(batch_solver_fn(Params(), ipm.IPMOptions(), 1))
+    both = fn(*[a for a in stack_problems(probs) if a is not None])
+    for i, p in enumerate(probs):
+        one = fn(*[a[None] for a in p if a is not None])
+        np.testing.assert_allclose(np.asarray(both[0][i]), np.asarray(one[0][0]), rtol=1e-6, atol=1e-8)
+        np.testing.assert_allclose(float(both[5][i]), float(one[5][0]), rtol=1e-9, atol=1e-12)

@@ -93,8 +93,9 @@ class Problem(NamedTuple):
     member: jnp.ndarray  # (n,) int32 layout of a pack each brick is in (ForceModel.member; 0: one layout)
     layers: jnp.ndarray | None = None  # (L,): bricks numbered layer by layer (None: one layer, dense)
     chunks: jnp.ndarray | None = None  # (C, W) int32: columns grouped by brick pair, m = none (pair_chunks)
-    # bricks numbered by slabs (slab_levels; None: by layers or dense): each brick's supports, the
-    # bricks under its NORMAL columns, in any level next to its own (support_table)
+    # bricks numbered by slabs (slab_levels) and dense problems (dense_supports; None: by layers):
+    # each brick's supports, the bricks under its NORMAL columns, in any level next to its own
+    # (support_table)
     supports: jnp.ndarray | None = None  # (n, K) int32 brick of each support slot, n = none
     col_slot: jnp.ndarray | None = None  # (m,) int32 support slot of each column's lower brick, K = none
 
