@@ -235,17 +235,6 @@ CPU_CACHE_BYTES = 4e6
 DEVICE_CACHE_BYTES = 64e6
 
 
-def _batched(prob: Problem) -> Problem:
-    """A problem as a batch solves it: a dense one without its support
-    table, so that its rank-one terms are one product, as before session
-    42 (the supports' pieces, :func:`~stablelego_jax.solvers.problem.dense_supports`,
-    were measured faster for a problem solved alone on a CPU, where every
-    dense bucket is; a batch, on a GPU, was not measured)."""
-    if prob.layers is None or prob.layers.shape[-1] == 1:
-        return prob._replace(supports=None, col_slot=None)
-    return prob
-
-
 def batch_solver_fn(params: Params, opts, n_dev: int):
     """``fn(*stacked problem arrays) -> tuple(Solution)``: ``vmap`` of the JAX
     solver ``opts`` selects (:class:`~stablelego_jax.solvers.ipm.IPMOptions`:
@@ -268,7 +257,7 @@ def batch_solver_fn(params: Params, opts, n_dev: int):
             if arrays[0].shape[0] == 1 and (layers is None or layers.shape[-1] == 1):
                 one = dataclasses.replace(opts, cut=True)  # alone: factor only the real bricks' rows
                 return tuple(x[None] for x in ipm.solve(Problem(*(a[0] for a in arrays)), params, one))
-            return tuple(jax.vmap(lambda *a: ipm.solve(_batched(Problem(*a)), params, opts))(*arrays))
+            return tuple(jax.vmap(lambda *a: ipm.solve(Problem(*a), params, opts))(*arrays))
     else:
 
         def f(*arrays):

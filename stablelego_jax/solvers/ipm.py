@@ -83,7 +83,9 @@ class IPMOptions:
     (not under ``vmap``) factors only its real bricks' rows, at the
     smallest size of the brick ladder from :data:`CUT_MIN` that holds them
     (:func:`~stablelego_jax.solvers.blocks.cut_cholesky`); the numbers are
-    those of the full factor.
+    those of the full factor; with ``Problem.supports``, its bricks'
+    rank-one terms are assembled from their supports (a batch, not cut,
+    forms them as one product).
     """
 
     max_iter: int = 80
@@ -153,6 +155,9 @@ def _system(prob: Problem, params: Params, opts: IPMOptions) -> dict:
 
     # one dense block solved alone: factor only the leading rows of the real bricks
     # (padding bricks come last), at the smallest of the ladder's sizes that holds them
+    # a dense problem solved alone assembles its bricks' rank-one terms from their supports
+    # (problem.dense_supports: faster on a CPU); a batch of them (a GPU's) keeps the product
+    supports, col_slot = (prob.supports, prob.col_slot) if L > 1 or opts.cut else (None, None)
     cut = opts.cut and L == 1 and n > CUT_MIN
     if cut:
         live = 6 * jnp.max(jnp.where(prob.brick_mask, jnp.arange(1, n + 1), 0))
@@ -160,7 +165,7 @@ def _system(prob: Problem, params: Params, opts: IPMOptions) -> dict:
 
     # the blocks of M for any weights (static scatter plan; :mod:`.newton`)
     assemble = reduced_matrix(prob.col_brick, coef, (kind == NORMAL) & cmask, n, L, prob.chunks,
-                              prob.supports, prob.col_slot)
+                              supports, col_slot)
 
     def G(z):
         x, Dv, t, rp, rm = zparts(z)
@@ -208,7 +213,7 @@ def _system(prob: Problem, params: Params, opts: IPMOptions) -> dict:
         # added on the diagonal in place (a full pass over a dense 720-row block was
         # a tenth of its iteration)
         i = jnp.arange(k6)
-        if cut and prob.supports is None:  # the rank-one terms as a factor for the cut
+        if cut and supports is None:  # the rank-one terms as a factor for the cut
             Dm, Em, P = assemble(e, q, 1.0 / gam, dr, split=True)
             dg = Dm[:, i, i] + (P * P).sum(0)
         else:  # the whole matrix in D (the rank-one terms by :mod:`.newton`'s assemblies)

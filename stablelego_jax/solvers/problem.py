@@ -1027,7 +1027,9 @@ def dense_supports(model: ForceModel) -> int:
     or the next of :data:`SUPPORT_RUNGS` for a layout with more. Dense
     problems assemble each brick's rank-one term (its largest drag) from
     its supports, one (6 (K + 1))^2 piece a brick, instead of the product
-    of an (n, 6 n) matrix with itself: one core, the small set's layouts
+    of an (n, 6 n) matrix with itself, when solved alone
+    (:attr:`~stablelego_jax.solvers.ipm.IPMOptions.cut`; a batch keeps the
+    product, measured nowhere else): one core, the small set's layouts
     solved alone, 0.73-0.82x the time an iteration where the factor is cut
     (41-120 bricks), 0.94x at 25-40, the same at 9-24, 1.08x at 1-8; every
     shape compiled 0.2-0.4 s faster (BENCHMARKS.md, issue 17, session 42)."""
