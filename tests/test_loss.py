@@ -251,7 +251,10 @@ def test_layers_factored_at_their_own_size_give_the_same_loss_and_gradients():
     f = jax.jit(jax.value_and_grad(lambda w, l, q: stability_loss(w, l, q, opts=OPTS), argnums=(0, 1)))
     (v0, (gw0, gl0)), (v1, (gw1, gl1)) = f(w, loads, p), f(w, loads, cut)
     assert float(v0) > 1e-3  # the load pulls the top brick off: above the barrier's floor
-    assert abs(float(v1) - float(v0)) <= 1e-9 * abs(float(v0))
+    # the issue's "same loss" (1e-8 relative): another summation order moves where the
+    # interior point stops by more than 1e-9 here (session 42's code, cut against uncut,
+    # outside pytest: 6.6e-9 with one BLAS thread, 4.7e-9 with the default threads)
+    assert abs(float(v1) - float(v0)) <= 1e-8 * abs(float(v0))
     # to the solver's own reproducibility: on this problem the dense and the full layered
     # factorisations' gradients differ by 1.2e-6 of the largest (another summation order)
     scale = max(np.abs(gw0).max(), np.abs(gl0).max())

@@ -115,19 +115,20 @@ def reduced_matrix(col_brick, coef, normal, n: int, L: int, chunks=None, support
     if L > 1:
         below = ok_n & real & (lay_l == lay_o - 1)[:, None]
         w_row, w_col = jnp.where(below[:, 0], ob, n), 6 * (lo % B)
-        eye = jnp.eye(B, dtype=dtype)[None, :, None, :, None]
+        slots = jnp.arange(n, dtype=col_brick.dtype)
+        diag_idx = block_windows(slots, slots, n, L)
 
         def assemble(e, q, rho, dr):
             o = own_parts(q)
-            W = rows6(w_row, w_col, q[:, None] * c12[:, 6:]).reshape(L, B, k6)
-            ro = (rho[:, None] * o).reshape(L, B, 6)
-            # 6 x 6 diagonal blocks rho o o' plus diag(dr), placed on the block diagonal
-            P = ro[..., :, None] * o.reshape(L, B, 1, 6) + jax.vmap(jax.vmap(jnp.diag))(dr.reshape(L, B, 6))
-            WW = jnp.matmul(jnp.swapaxes(W * rho.reshape(L, B, 1), 1, 2), W)
-            OW = (ro[..., None] * W[:, :, None, :]).reshape(L, k6, k6)  # rows: owners' slots, columns: below
-            # level l + 1's terms land on level l; the Gram's windows go into these in place
-            D0 = (P[:, :, :, None, :] * eye).reshape(L, k6, k6) + down(WW)
-            return gram.blocks(e, base=(D0, down(OW)))
+            ro = rho[:, None] * o
+            # level l + 1's supports' parts (rows: its bricks, columns: level l's slots), moved
+            # down a level before the products (not the (L, k, k) products after them)
+            W = down(rows6(w_row, w_col, q[:, None] * c12[:, 6:]).reshape(L, B, k6))
+            D0 = jnp.matmul(jnp.swapaxes(W * down(rho.reshape(L, B))[..., None], 1, 2), W)
+            E0 = (down(ro.reshape(L, B, 6))[..., None] * W[:, :, None, :]).reshape(L, k6, k6)
+            # each brick's 6 x 6 diagonal block rho o o' + diag(dr), with the Gram's windows
+            P = ro[:, :, None] * o[:, None, :] + jax.vmap(jnp.diag)(dr.reshape(n, 6))
+            return gram.blocks(e, extra=(diag_idx, P), base=(D0, E0))
 
         return assemble
 

@@ -1108,13 +1108,17 @@ class LayerGram(NamedTuple):
         of its own windows in place (no zeroed (2 L, k, k) buffer, and no
         pass adding its halves to them)."""
         L, k = self.L, self.k
-        if self.rows is None:
-            piece = e[:, None, None] * (self.coef[:, 0, :, None] * self.coef[:, 0, None, :])
-        else:
-            ew = jnp.concatenate([e, jnp.zeros((1,), e.dtype)])[self.rows]  # (R, W)
-            piece = jnp.einsum("rwi,rwj->rij", self.coef * ew[..., None], self.coef)
-        R = piece.shape[0]
-        win = piece.reshape(R, 2, 6, 2, 6).transpose(0, 1, 3, 2, 4).reshape(4 * R, 6, 6)
+        R, W = self.coef.shape[:2]
+        ew = e[:, None] if self.rows is None else jnp.concatenate([e, jnp.zeros((1,), e.dtype)])[self.rows]
+        # each piece's four 6 x 6 brick blocks, summed column by column in the
+        # windows' layout: one fused loop (a batched (12, W) x (W, 12) product
+        # and the transpose into windows took 1.4x as long: 2000 placements,
+        # BENCHMARKS.md issue 18, session 43)
+        win = 0.0
+        for w in range(W):
+            c = self.coef[:, w]
+            win = win + (c * ew[:, w, None]).reshape(R, 2, 1, 6, 1) * c.reshape(R, 1, 2, 1, 6)
+        win = win.reshape(4 * R, 6, 6)
         idx = self.idx.reshape(4 * R, 3)
         if extra is not None:
             idx = jnp.concatenate([idx, extra[0].reshape(-1, 3)])
