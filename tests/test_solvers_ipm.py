@@ -167,6 +167,29 @@ def test_dense_problems_assemble_the_rank_one_terms_from_supports_with_the_same_
         np.testing.assert_allclose(float(a.objective), float(b.objective), rtol=1e-9, atol=1e-12)
 
 
+def test_layered_problems_assembled_from_supports_give_the_per_level_products_answer():
+    """A layered key with support slots (``("layered", L, B, K)``, what
+    ``fit_plan`` gives a lone unit cube) assembles each brick's
+    largest-drag term from its supports' pieces instead of one product per
+    level: the same forces and objective, on a block of unit bricks and on
+    a staircase (bricks on two supports, its steps held by drags)."""
+    costs = []
+    for lay in (cuboid(4, 4, 5), stairs(60)):
+        model = compile_layout(lay)
+        key = solve_plan(model)
+        assert key[0] == "layered"
+        m_pad, p_pad = rung(model.m, 64), rung(model.group.shape[1], 4)
+        _, plain = plan_problem(model, key, m_pad, p_pad)
+        fm, sup = plan_problem(model, key + (4,), m_pad, p_pad)
+        assert plain.supports is None and sup.supports.shape == (key[1] * key[2], 4)
+        a, b = (jax.jit(ipm.solve)(q) for q in (sup, plain))
+        assert bool(a.converged) and bool(b.converged)
+        np.testing.assert_allclose(np.asarray(a.f), np.asarray(b.f), rtol=1e-6, atol=1e-8)
+        np.testing.assert_allclose(float(a.objective), float(b.objective), rtol=1e-9, atol=1e-12)
+        costs.append(float(b.objective))
+    assert costs[1] > 0.1  # the staircase's drags carry its steps: the rank-one terms matter
+
+
 def test_analyze_uses_interior_point_and_admm_on_request():
     lay = stairs(5)
     a = analyze_layout(lay)

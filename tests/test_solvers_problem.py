@@ -126,9 +126,14 @@ def test_one_large_layout_gets_a_plan_fitted_to_it():
     key = solve_plan(m)
     assert key == ("layered", 12, 128)
     fit = fit_plan(m, key, rung(m.m, 64))
-    assert fit == ("layered", 10, 104)
+    # and each brick's term from its one support (4 slots): 2 104^2 / 5^2 >= SUPPORTS_RATIO
+    assert fit == ("layered", 10, 104, 4)
     fm, prob = plan_problem(m, fit, rung(m.m, 64), rung(m.group.shape[1], 4))
-    assert prob.layers.shape == (10,) and prob.gravity.shape[0] == 1040
+    assert prob.layers.shape == (10,) and prob.gravity.shape[0] == 1040 and prob.supports.shape == (1040, 4)
+    # a solid shape's narrower layers (40 slots) keep the product per level
+    solid = compile_layout(cuboid(8, 5, 20))
+    sk = fit_plan(solid, solve_plan(solid), rung(solid.m, 64))
+    assert sk[0] == "layered" and len(sk) == 3
     small = compile_layout(cuboid(4, 4, 4))
     assert fit_plan(small, solve_plan(small), rung(small.m, 64)) == solve_plan(small)
 

@@ -61,6 +61,8 @@ __all__ = [
     "levels_ok",
     "support_count",
     "support_table",
+    "support_rung",
+    "SUPPORTS_RATIO",
     "to_layered",
     "layered_problem",
     "chunk_rows",
@@ -736,6 +738,23 @@ def layered_problem(model: ForceModel, L: int, c_pad: int | None = None, support
 SUPPORT_RUNGS = (4, 8, 16, 32, 64)
 
 
+def support_rung(k: int) -> int:
+    """Support slots for a layout whose bricks have at most ``k`` supports:
+    the next of :data:`SUPPORT_RUNGS`, then multiples of 16."""
+    return next((r for r in SUPPORT_RUNGS if r >= k), -(-k // 16) * 16)
+
+
+#: A layered layout solved alone assembles each brick's largest-drag term
+#: from its supports' pieces (``(6 (K + 1))^2`` entries a brick, in the
+#: Gram's scatter: the slabs' assembly) instead of one product per level
+#: (``2 (6 B)^2`` flops a brick) when ``2 B^2 / (K + 1)^2`` is at least
+#: this. One core, solve after compile: the 10^3 unit cube (B = 104, K =
+#: 4 slots; ratio 865) 2.81-3.08 s against 3.02-3.13 s, the 8^3 one (328)
+#: 0.69-0.72 s against 0.72 s, a solid 20^3 shape (B = 40) the same
+#: (BENCHMARKS.md, issue 17, session 43).
+SUPPORTS_RATIO = 500
+
+
 #: Layouts of at most this many (padded) bricks are always solved dense.
 DENSE_MAX = 48
 
@@ -770,7 +789,7 @@ def solve_plan(model: ForceModel) -> tuple:
             Ls, Bs = layer_bucket(len(np.unique(lv)), int(np.bincount(lv).max()))
             if Ls > 1 and Ls * Bs ** 3 <= (SLAB_GAIN if best[0] == "layered" else 1.0) * cost:
                 k = support_count(model)
-                best = ("slabs", Ls, Bs, next((r for r in SUPPORT_RUNGS if r >= k), -(-k // 16) * 16))
+                best = ("slabs", Ls, Bs, support_rung(k))
     return best
 
 
@@ -781,12 +800,19 @@ def fit_plan(model: ForceModel, key: tuple, m_pad: int | None = None) -> tuple:
     that saves (:func:`plan_seconds`) exceeds one compile of a single
     solver (``SINGLE_COMPILE_S``: a shape of its own is not shared with
     other layouts). A 10^3 unit cube is solved in 10 layers of 104 slots
-    instead of 12 of 128."""
+    instead of 12 of 128. A fitted layered key gets a fourth entry, its
+    support slots (:func:`support_rung`), where the supports' pieces are
+    the cheaper assembly (:data:`SUPPORTS_RATIO`): ("layered", 10, 104, 4)
+    for that cube."""
     if key[0] == "dense":
         fit = ("dense", -(-model.n // 8) * 8)
     else:
         z = slab_levels(model) if key[0] == "slabs" else layer_levels(model)
         fit = (key[0], len(np.unique(z)), -(-int(np.bincount(z).max()) // 8) * 8) + key[3:]
+        if fit[0] == "layered":
+            K = support_rung(support_count(model))
+            if 2 * fit[2] ** 2 >= SUPPORTS_RATIO * (K + 1) ** 2:
+                fit += (K,)
     if plan_seconds(key, m_pad) - plan_seconds(fit, m_pad) > SINGLE_COMPILE_S:
         return fit
     return key
@@ -1013,7 +1039,8 @@ def plan_problem(model: ForceModel, key: tuple, m_pad: int, p_pad: int,
         if key[0] == "slabs":
             lv = slab_levels(fm)
             return fm, layered_problem(to_layered(fm, key[1], key[2], lv), key[1], c_pad, supports=key[3])
-        return fm, layered_problem(to_layered(fm, key[1], key[2]), key[1], c_pad)
+        # ("layered", L, B, K): a fitted key whose supports' pieces are the cheaper assembly
+        return fm, layered_problem(to_layered(fm, key[1], key[2]), key[1], c_pad, supports=(key[3:] or (None,))[0])
     fm = model.pad(key[1], m_pad, p_pad)
     return fm, layered_problem(fm, 1, c_pad, supports=dense_supports(fm))
 
@@ -1034,7 +1061,7 @@ def dense_supports(model: ForceModel) -> int:
     (41-120 bricks), 0.94x at 25-40, the same at 9-24, 1.08x at 1-8; every
     shape compiled 0.2-0.4 s faster (BENCHMARKS.md, issue 17, session 42)."""
     k = support_count(model)
-    return DENSE_SUPPORTS if k <= DENSE_SUPPORTS else next((r for r in SUPPORT_RUNGS if r >= k), -(-k // 16) * 16)
+    return DENSE_SUPPORTS if k <= DENSE_SUPPORTS else support_rung(k)
 
 
 # --------------------------------------------------------------- operators
