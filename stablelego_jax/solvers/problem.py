@@ -356,10 +356,12 @@ def cut_saving(prob: SoftProblem, solves: float | None = None) -> float:
     loss and its gradient): half the factor flops the cuts leave out, at
     :func:`plan_seconds`' price of a layer's factor. Half: the branches
     copy their blocks in and out (the 2000-placement bunny, 20 x 120
-    slots: 0.79 of the flops, 7-11% of the solve; session 42)."""
+    slots: 0.79 of the flops, 7-11% of the solve; session 42). ``prob``:
+    with ``cut`` set, or without (then worked out here)."""
     L, B = prob.layers.shape
     sizes = np.asarray(layer_cuts(B))
-    c = sizes[layer_picks(6 * cut_layers(prob).cut, sizes, np)].astype(float)
+    cut = cut_layers(prob).cut if prob.cut is None else prob.cut
+    c = sizes[layer_picks(6 * cut, sizes, np)].astype(float)
     solves = SOFT_SOLVES if solves is None else solves
     return float(0.5 * solves * LAYER_K3_S * ((6.0 * B) ** 3 * L - (c ** 3).sum()))
 
@@ -498,8 +500,10 @@ def plan_soft(prob: SoftProblem, calls: int = 1) -> SoftProblem:
         if extra <= SOFT_SHARE * SOFT_COMPILE_S:
             shape, c_pad = shared[:3], shared[3]
     prob = pad_soft(prob, *(fshape if fitted else shape), c_pad=c_pad)
-    if prob.layers is not None and calls * cut_saving(prob) > CUT_BRANCH_S * len(layer_cuts(prob.layers.shape[1])):
-        prob = cut_layers(prob)
+    if prob.layers is not None:
+        cut = cut_layers(prob)
+        if calls * cut_saving(cut) > CUT_BRANCH_S * len(layer_cuts(prob.layers.shape[1])):
+            return cut
     return prob
 
 
@@ -1040,7 +1044,8 @@ def plan_problem(model: ForceModel, key: tuple, m_pad: int, p_pad: int,
             lv = slab_levels(fm)
             return fm, layered_problem(to_layered(fm, key[1], key[2], lv), key[1], c_pad, supports=key[3])
         # ("layered", L, B, K): a fitted key whose supports' pieces are the cheaper assembly
-        return fm, layered_problem(to_layered(fm, key[1], key[2]), key[1], c_pad, supports=(key[3:] or (None,))[0])
+        return fm, layered_problem(to_layered(fm, key[1], key[2]), key[1], c_pad,
+                                   supports=key[3] if len(key) > 3 else None)
     fm = model.pad(key[1], m_pad, p_pad)
     return fm, layered_problem(fm, 1, c_pad, supports=dense_supports(fm))
 
