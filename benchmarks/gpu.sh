@@ -4,15 +4,16 @@
 #
 # Usage (on the machine with the GPU, from the repository root):
 #   OUT=DIR bash benchmarks/gpu.sh [STEPS]
-# STEPS: any of env small shard loss batch (default: all, in that order).
+# STEPS: any of env small rate shard loss batch (default: all but rate, in that order).
 #
 # Needs the image's python3 with a CUDA jax; packages it lacks (clarabel,
 # trimesh) are installed from .whl/ when that folder is there; the shard
 # (SHARD, default benchmarks/results/shard1000) and the small set (SMALL,
 # default benchmarks/results/small500) of benchmarks/make_shard.py, and a mesh for the loss at .gpu/bunny.ply
 # (or MESH=...). Every step runs under its own time limit (seconds:
-# SMALL_S, WARM_S, EXACT_S, SHARD_S, SHARD_EXACT_S, LOSS_S, BATCH_S; they sum
-# to 560 s with the env step, within one device call) and leaves its results files, its
+# SMALL_S, WARM_S, EXACT_S, SHARD_S, SHARD_EXACT_S, LOSS_S, BATCH_S, RATE_S; the
+# defaults of the default steps sum to 560 s with the env step, within one
+# device call) and leaves its results files, its
 # command's summary line and a line count every 10 s in $OUT/log.txt, so a
 # step cut short still says how far it got; everything is packed into
 # $OUT/gpu.tgz after each step. Labels and highest scores are compared with
@@ -26,6 +27,7 @@ set -u
 OUT=${OUT:-/tmp/stablelego-gpu}
 PY=${PYTHON:-python3}
 STEPS=${*:-env small shard loss batch}
+RATE_KEYS=${RATE_KEYS:-dense,8 dense,24 dense,40 layered,20,32}
 MESH=${MESH:-.gpu/bunny.ply}
 SMALL=${SMALL:-benchmarks/results/small500}
 SHARD=${SHARD:-benchmarks/results/shard1000}
@@ -78,6 +80,13 @@ small)
     score "$SMALL" small_jax_first "${SMALL_S:-110}" jax
     score "$SMALL" small_jax_warm "${WARM_S:-50}" jax
     JAX_PLATFORMS=cpu score "$SMALL" small_exact "${EXACT_S:-30}" exact --jobs "$JOBS"
+    ;;
+rate)
+    say "batch_rate.py: layouts/s at batch 1, 64, 1024 on $RATE_KEYS (limit ${RATE_S:-90} s)"
+    timeout "${RATE_S:-90}" $PY benchmarks/batch_rate.py --inputs "$SHARD" --top 0 --keys $RATE_KEYS \
+        --sizes 1 64 1024 --seconds 2 --max-gb 60 --json "$R/rate.json" 2>"$R/rate.err" | tee -a "$LOG"
+    say "  exit ${PIPESTATUS[0]}"
+    pack
     ;;
 shard)
     export STABLELEGO_CACHE_DIR=$CACHE/shard
