@@ -19,7 +19,9 @@ import sys
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from cores import SUMMARY, agreement, results  # noqa: E402
 
-PAIRS = {"small_jax_first": "small_exact", "small_jax_warm": "small_exact", "shard_jax_first": "shard_exact"}
+PAIRS = {"small_jax_first": "small_exact", "small_jax_warm": "small_exact", "shard_jax_first": "shard_exact",
+         "shard_jax_warm": "shard_exact", "shard_jax_batched": "shard_exact",
+         "shard_jax_batched_warm": "shard_exact"}
 
 
 def main(argv=None) -> None:

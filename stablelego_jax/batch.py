@@ -70,7 +70,8 @@ from .solvers.problem import (
 __all__ = ["find_layouts", "read_results", "ScoreStats", "iter_analyses", "analyze_many", "score_files",
            "batch_solver_fn", "batch_sizes", "plan_bytes", "parse_shard", "in_shard", "cpu_cores",
            "RESULT_PREFIX", "SolveUnit", "solve_units", "compiled_ready", "assign_units", "POOL_MIN",
-           "auto_split", "ACCELERATOR_SPEEDUP", "ACCELERATOR_COMPILE_S", "CPU_CACHE_BYTES", "DEVICE_CACHE_BYTES",
+           "auto_split", "ACCELERATOR_SPEEDUP", "ACCELERATOR_COMPILE_S", "CPU_CACHE_BYTES", "CPU_BUDGET_BYTES",
+           "device_budget",
            "worker_order", "next_unit", "POOL_DEPTH", "Workers", "jax_pool_size", "exact_parts", "pack_items",
            "PACK_MOST", "solve_unit"]
 
@@ -201,10 +202,11 @@ def plan_bytes(key: tuple, m_pad: int) -> int:
     return 8 * (6 * L * k6 * k6 + 4 * L * B * k6) + m_pad * 144 * (8 + 4 + 8) + 8 * 40 * m_pad
 
 
-def batch_sizes(per_layout: int, batch: int, n_dev: int, mem_budget: float = 2e9,
+def batch_sizes(per_layout: int, batch: int, n_dev: int, mem_budget: float | None = None,
                 cpu: bool | None = None) -> int:
-    """Largest batch: at most ``batch``, within ``mem_budget`` bytes for
-    ``per_layout`` bytes of each member, and a multiple of ``n_dev``.
+    """Largest batch: at most ``batch``, within ``mem_budget`` bytes a device
+    (default :func:`device_budget`) for ``per_layout`` bytes of each member,
+    and a multiple of ``n_dev``.
 
     On a CPU (``cpu``; default: JAX's default backend) each core's share of
     a batch is also held within :data:`CPU_CACHE_BYTES` (a power of two, at
@@ -213,26 +215,38 @@ def batch_sizes(per_layout: int, batch: int, n_dev: int, mem_budget: float = 2e9
     member for its slowest member's iterations and passing over Newton
     matrices that no longer fit in the core's cache (BENCHMARKS.md, session
     32: batches of 1-4 solve 1.3-4.8x faster per layout than 32-64). On an
-    accelerator, members whose working set exceeds
-    :data:`DEVICE_CACHE_BYTES` / 2 go one per device: their factorisations
-    already keep it busy, and a batch would only run every member for its
-    slowest member's iteration count."""
+    accelerator only the memory budget holds a batch back: there a batch of
+    64 solved 12x more layouts a second than one at a time even for a
+    20-layer bucket of 76 MB a member, and 54x for a 40-brick dense bucket
+    (an H200, ``benchmarks/batch_rate.py``, BENCHMARKS.md session 44)."""
     if cpu is None:
         cpu = jax.default_backend() == "cpu"
+    if mem_budget is None:
+        mem_budget = CPU_BUDGET_BYTES if cpu else device_budget()
     cap = mem_budget * n_dev // max(per_layout, 1)
     if cpu:
         fit = max(int(CPU_CACHE_BYTES // max(per_layout, 1)), 1)
         cap = min(cap, n_dev * (1 << (fit.bit_length() - 1)))  # a power of two a device, as batch_rung pads
-    elif per_layout > DEVICE_CACHE_BYTES / 2:
-        cap = min(cap, n_dev)
     b = int(max(1, min(batch, cap)))
     return max(n_dev, (b // n_dev) * n_dev)
 
 
 #: Working set (bytes) of one CPU core's share of a batch (this machine's L2 holds 4 MiB a core).
 CPU_CACHE_BYTES = 4e6
-#: On an accelerator, a member of more than half this working set goes alone.
-DEVICE_CACHE_BYTES = 64e6
+#: Memory (bytes) a batch may take on a CPU device, and at least on an accelerator.
+CPU_BUDGET_BYTES = 2e9
+
+
+@functools.lru_cache(maxsize=None)
+def device_budget() -> float:
+    """Memory (bytes) one batch may take on the first local device: a quarter
+    of what JAX may allocate there (``memory_stats()['bytes_limit']``), at
+    least :data:`CPU_BUDGET_BYTES` (also where the device does not say)."""
+    try:
+        limit = (jax.local_devices()[0].memory_stats() or {}).get("bytes_limit", 0)
+    except Exception:  # a backend without memory statistics
+        limit = 0
+    return max(CPU_BUDGET_BYTES, float(limit) / 4)
 
 
 def batch_solver_fn(params: Params, opts, n_dev: int):

@@ -121,6 +121,10 @@ def test_batch_sizes_respect_memory_and_devices():
     assert batch_sizes(big, 64, 1, cpu=False) * big <= 2e9
     assert batch_sizes(small, 64, 4, cpu=False) % 4 == 0
     assert batch_sizes(10 * big, 64, 2, cpu=False) == 2
+    # an accelerator batches a 20-layer member of 76 MB (64 of them: 12x one at a time on an H200)
+    layered = plan_bytes(("layered", 20, 32), 2048)
+    assert batch_sizes(layered, 64, 1, cpu=False, mem_budget=35e9) == 64
+    assert batch_sizes(layered, 64, 1, cpu=False) == int(2e9 // layered)
     # the layer-by-layer plan of a 20-layer blob needs far less than its dense form
     assert plan_bytes(("layered", 20, 40), 8192) < plan_bytes(("dense", 800), 8192) / 10
 
@@ -175,7 +179,10 @@ def test_piece_sizes_are_the_padded_batches_solved():
     assert piece_sizes(key, 64, 64, 64, 1, cpu=False) == [64]
     assert piece_sizes(key, 64, 5, 64, 2, cpu=False) == [8]
     assert piece_sizes(key, 64, 130, 32, 1, cpu=False) == [32, 32, 32, 32, 2]
-    assert piece_sizes(("dense", 512), 4096, 3, 64, 1, cpu=False) == [1, 1, 1]  # one a batch: its memory
+    # 515 MB a member: three fit the 2 GB budget
+    assert 2e9 // plan_bytes(("dense", 512), 4096) == 3
+    assert piece_sizes(("dense", 512), 4096, 3, 64, 1, cpu=False) == [3]
+    assert piece_sizes(("dense", 512), 4096, 7, 64, 1, cpu=False) == [3, 3, 3]
     assert piece_sizes(key, 64, 6, 4, 1, cpu=False) == [4, 4]  # not [4, 2]: one size compiled, not two
     assert FULL_BATCH >= 4
     assert piece_sizes(("dense", 40), 2184, 3, 64, 1, cpu=True) == [1, 1, 1]
