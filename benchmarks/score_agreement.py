@@ -57,6 +57,10 @@ def compare(ex: dict, other: dict) -> tuple[dict, list]:
         converged=sum(bool(other[f].get("converged", True)) for f in files),
         by_solver={s: sum(other[f].get("solver") == s for f in files) for s in ("jax", "exact", "admm")},
     )
+    if files:  # each layout's largest per-brick difference: the tolerance met on 50/90/99/100% of layouts
+        q = np.quantile(list(diff.values()), [0.5, 0.9, 0.99, 1.0])
+        counts["largest_difference"] = dict(zip(("median", "p90", "p99", "max"), (float(f"{x:.3g}") for x in q)))
+        counts["per_brick_1e-2"] = sum(d <= 1e-2 for d in diff.values())
     return counts, [f for f in files if diff[f] > 1e-3]
 
 
