@@ -129,6 +129,33 @@ def test_batch_sizes_respect_memory_and_devices():
     assert plan_bytes(("layered", 20, 40), 8192) < plan_bytes(("dense", 800), 8192) / 10
 
 
+def test_device_budget_is_a_quarter_of_the_device(monkeypatch):
+    """An accelerator's batch budget: a quarter of what JAX may allocate on
+    the first device, at least CPU_BUDGET_BYTES (also where it does not say)."""
+    import jax
+
+    from stablelego_jax import batch
+
+    class Device:
+        def __init__(self, stats):
+            self.stats = stats
+
+        def memory_stats(self):
+            return self.stats
+
+    for stats, want in (({"bytes_limit": 100e9}, 25e9), ({"bytes_limit": 1e9}, batch.CPU_BUDGET_BYTES),
+                        (None, batch.CPU_BUDGET_BYTES), ({}, batch.CPU_BUDGET_BYTES)):
+        monkeypatch.setattr(jax, "local_devices", lambda stats=stats: [Device(stats)])
+        batch.device_budget.cache_clear()
+        assert batch.device_budget() == want
+    batch.device_budget.cache_clear()
+    monkeypatch.setattr(jax, "local_devices", lambda: [Device({"bytes_limit": 100e9})])
+    big = plan_bytes(("layered", 20, 32), 2048)
+    assert batch_sizes(big, 64, 1, cpu=False) == 64  # 25 GB takes 64 members of 76 MB
+    assert batch_sizes(big, 64, 1, cpu=True) == 1  # a CPU keeps its own rule
+    batch.device_budget.cache_clear()
+
+
 def test_cpu_batches_stay_within_a_cores_cache():
     """On a CPU each core's share of a batch fits CPU_CACHE_BYTES, at least
     one layout a device: a tiny bucket still batches, a 40-brick one does not."""
