@@ -54,7 +54,10 @@ def main() -> None:
     from stablelego_jax.formats.reader import load_layout
     from stablelego_jax.model import Params, compile_layout
     from stablelego_jax.solvers import ipm
-    from stablelego_jax.solvers.problem import Solution, plan_problem, solve_plan, stack_problems
+    from stablelego_jax.solvers.problem import Solution, solve_plan, stack_problems
+
+    sys.path.insert(0, HERE)
+    from batch_sizes import bucket_problems
 
     files = sorted(f for d in a.inputs for f in (glob.glob(os.path.join(d, "*.json")) if os.path.isdir(d) else [d]))
     t0 = time.perf_counter()
@@ -71,10 +74,7 @@ def main() -> None:
         if not mine:
             print(f"{key}: no layout of the inputs in this bucket", flush=True)
             continue
-        m_pad = max(m.m_pad for m in mine)
-        p_pad = max(m.group.shape[1] for m in mine)
-        c_pad = max(plan_problem(m, key, m_pad, p_pad)[1].chunks.shape[0] for m in mine)
-        probs = [plan_problem(m, key, m_pad, p_pad, c_pad)[1] for m in mine]
+        m_pad, probs = bucket_problems(mine, key)
         bricks = sorted(m.n for m in mine)
         for b in a.sizes:
             gb = b * plan_bytes(key, m_pad) / 1e9

@@ -32,6 +32,18 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, os.path.join(HERE, ".."))
 
 
+def bucket_problems(models: list, key: tuple) -> tuple:
+    """(m_pad, problems): ``models`` of bucket ``key`` padded to one shape
+    (their largest column, slot and column-chunk counts), as ``score`` pads
+    a bucket."""
+    from stablelego_jax.solvers.problem import plan_problem
+
+    m_pad = max(m.m_pad for m in models)
+    p_pad = max(m.group.shape[1] for m in models)
+    c_pad = max(plan_problem(m, key, m_pad, p_pad)[1].chunks.shape[0] for m in models)
+    return m_pad, [plan_problem(m, key, m_pad, p_pad, c_pad)[1] for m in models]
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--inputs", nargs="+", default=[os.path.join(HERE, "results", "small500")])
@@ -48,7 +60,7 @@ def main() -> None:
     from stablelego_jax.formats.reader import load_layout
     from stablelego_jax.model import compile_layout
     from stablelego_jax.solvers import ipm
-    from stablelego_jax.solvers.problem import plan_problem, solve_plan, stack_problems
+    from stablelego_jax.solvers.problem import solve_plan, stack_problems
 
     files = sorted(f for d in a.inputs for f in (glob.glob(os.path.join(d, "*.json")) if os.path.isdir(d) else [d]))
     models = [compile_layout(load_layout(f)) for f in files]
@@ -61,10 +73,7 @@ def main() -> None:
         if not mine:
             print(f"{key}: no layout of the inputs in this bucket", flush=True)
             continue
-        m_pad = max(m.m_pad for m in mine)
-        p_pad = max(m.group.shape[1] for m in mine)
-        c_pad = max(plan_problem(m, key, m_pad, p_pad)[1].chunks.shape[0] for m in mine)
-        probs = [plan_problem(m, key, m_pad, p_pad, c_pad)[1] for m in mine]
+        m_pad, probs = bucket_problems(mine, key)
         for b in a.sizes:
             batches = []
             for i in range(0, len(probs), b):
