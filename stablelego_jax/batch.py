@@ -217,8 +217,9 @@ def batch_sizes(per_layout: int, batch: int, n_dev: int, mem_budget: float | Non
     32: batches of 1-4 solve 1.3-4.8x faster per layout than 32-64). On an
     accelerator only the memory budget holds a batch back: there a batch of
     64 solved 12x more layouts a second than one at a time even for a
-    20-layer bucket of 76 MB a member, and 54x for a 40-brick dense bucket
-    (an H200, ``benchmarks/batch_rate.py``, BENCHMARKS.md session 44)."""
+    20-layer bucket of 76 MB a member, 16x for a 40-brick dense bucket (54x
+    at 1024) (an H200, ``benchmarks/batch_rate.py``, BENCHMARKS.md session
+    44)."""
     if cpu is None:
         cpu = jax.default_backend() == "cpu"
     if mem_budget is None:
