@@ -4,16 +4,20 @@
 #
 # Usage (on the machine with the GPU, from the repository root):
 #   OUT=DIR bash benchmarks/gpu.sh [STEPS]
-# STEPS: any of env small rate shard loss batch (default: all but rate, in that order).
+# STEPS: any of env small rate shard loss batch (default: env shard, about
+# 9 minutes: one device call). The steps' defaults fit two calls:
+#   bash benchmarks/gpu.sh env shard             # ~510 s: JAX first run, warm run, HiGHS on every core
+#   bash benchmarks/gpu.sh env small loss batch  # ~300 s (add rate: ~90 s more)
+# HiGHS on the shard took 272 s on 16 cores of an H200 machine (session 44),
+# so a shard run needs most of a call by itself.
 #
 # Needs the image's python3 with a CUDA jax; packages it lacks (clarabel,
 # trimesh) are installed from .whl/ when that folder is there; the shard
 # (SHARD, default benchmarks/results/shard1000) and the small set (SMALL,
 # default benchmarks/results/small500) of benchmarks/make_shard.py, and a mesh for the loss at .gpu/bunny.ply
 # (or MESH=...). Every step runs under its own time limit (seconds:
-# SMALL_S, WARM_S, EXACT_S, SHARD_S, SHARD_EXACT_S, LOSS_S, BATCH_S, RATE_S; the
-# defaults of the default steps sum to 560 s with the env step, within one
-# device call) and leaves its results files, its
+# SMALL_S, WARM_S, EXACT_S, SHARD_S, SHARD_WARM_S, SHARD_EXACT_S, LOSS_S,
+# BATCH_S, RATE_S) and leaves its results files, its
 # command's summary line and a line count every 10 s in $OUT/log.txt, so a
 # step cut short still says how far it got; everything is packed into
 # $OUT/gpu.tgz after each step. Labels and highest scores are compared with
@@ -26,7 +30,7 @@
 set -u
 OUT=${OUT:-/tmp/stablelego-gpu}
 PY=${PYTHON:-python3}
-STEPS=${*:-env small shard loss batch}
+STEPS=${*:-env shard}
 RATE_KEYS=${RATE_KEYS:-dense,8 dense,24 dense,40 layered,20,32}
 MESH=${MESH:-.gpu/bunny.ply}
 SMALL=${SMALL:-benchmarks/results/small500}
@@ -90,8 +94,9 @@ rate)
     ;;
 shard)
     export STABLELEGO_CACHE_DIR=$CACHE/shard
-    score "$SHARD" shard_jax_first "${SHARD_S:-170}" jax
-    JAX_PLATFORMS=cpu score "$SHARD" shard_exact "${SHARD_EXACT_S:-80}" exact --jobs "$JOBS"
+    score "$SHARD" shard_jax_first "${SHARD_S:-140}" jax
+    score "$SHARD" shard_jax_warm "${SHARD_WARM_S:-60}" jax
+    JAX_PLATFORMS=cpu score "$SHARD" shard_exact "${SHARD_EXACT_S:-300}" exact --jobs "$JOBS"
     ;;
 loss)
     say "loss_scale 2000 placements (limit ${LOSS_S:-60} s)"
