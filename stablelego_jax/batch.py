@@ -71,7 +71,7 @@ __all__ = ["find_layouts", "read_results", "ScoreStats", "iter_analyses", "analy
            "batch_solver_fn", "batch_sizes", "plan_bytes", "parse_shard", "in_shard", "cpu_cores",
            "RESULT_PREFIX", "SolveUnit", "solve_units", "compiled_ready", "assign_units", "POOL_MIN",
            "auto_split", "ACCELERATOR_SPEEDUP", "ACCELERATOR_COMPILE_S", "CPU_CACHE_BYTES", "CPU_BUDGET_BYTES",
-           "device_budget",
+           "device_budget", "default_batch", "ACCELERATOR_BATCH",
            "worker_order", "next_unit", "POOL_DEPTH", "Workers", "jax_pool_size", "exact_parts", "pack_items",
            "PACK_MOST", "solve_unit"]
 
@@ -232,6 +232,19 @@ def batch_sizes(per_layout: int, batch: int, n_dev: int, mem_budget: float | Non
     return max(n_dev, (b // n_dev) * n_dev)
 
 
+def default_batch(cpu: bool | None = None) -> int:
+    """Most layouts per solver call when none is asked for: 64 on a CPU
+    (where :func:`batch_sizes` holds batches far lower anyway),
+    :data:`ACCELERATOR_BATCH` on an accelerator (``cpu``; default: JAX's
+    default backend)."""
+    if cpu is None:
+        cpu = jax.default_backend() == "cpu"
+    return 64 if cpu else ACCELERATOR_BATCH
+
+
+#: Most layouts per solver call on an accelerator, memory permitting: on an H200 a batch of
+#: 1024 solved 3.3-5.4x as many small layouts a second as one of 64 (BENCHMARKS.md, session 44).
+ACCELERATOR_BATCH = 1024
 #: Working set (bytes) of one CPU core's share of a batch (this machine's L2 holds 4 MiB a core).
 CPU_CACHE_BYTES = 4e6
 #: Memory (bytes) a batch may take on a CPU device, and at least on an accelerator.
@@ -347,7 +360,7 @@ def iter_analyses(
     solver: str = "jax",
     params: Params = Params(),
     opts=None,
-    batch: int = 64,
+    batch: int | None = None,
     devices: str | int = 1,
     exact_method: str = "highs",
     exact_scale: bool = True,
@@ -367,9 +380,10 @@ def iter_analyses(
 
     solver "jax" / "admm": layouts are grouped by solver bucket
     (:func:`~stablelego_jax.solvers.problem.solve_plan`), padded to the
-    group's largest column count and solved ``batch`` at a time by one
-    compiled, ``vmap``-ed solver per (bucket, batch size), split over
-    ``devices`` local devices (:func:`solve_units`); "exact": HiGHS one at
+    group's largest column count and solved ``batch`` (None:
+    :func:`default_batch`) at a time by one compiled, ``vmap``-ed solver
+    per (bucket, batch size), split over ``devices`` local devices
+    (:func:`solve_units`); "exact": HiGHS one at
     a time (``method``: "ours" or a baseline); "auto": the interior point's
     groups that HiGHS is estimated to solve faster (compile included) go to
     HiGHS, first, the rest to the interior point (:func:`auto_split`; a
@@ -396,6 +410,7 @@ def iter_analyses(
     running) instead of spawning its own.
     """
     solver = pick_solver(solver, method)
+    batch = batch or default_batch()
     st = stats if stats is not None else ScoreStats()
     loaded, bad = [], []
     for i, lay in enumerate(layouts):
@@ -1021,7 +1036,7 @@ def _score_files(
     inputs: Sequence[str],
     out: str,
     solver: str = "jax",
-    batch: int = 64,
+    batch: int | None = None,
     devices: str | int = "all",
     write_scores: bool = False,
     library=None,
@@ -1052,7 +1067,7 @@ def _score_files(
     layouts of hundreds of bricks); opts: options of the JAX solver
     (IPMOptions / SolverOptions; None: defaults); method: "ours" or a
     baseline ("luo", "eb"; exact solver only, see :mod:`~stablelego_jax.solvers.baselines`);
-    batch: most layouts per solver call; devices: "all" or a count of local
+    batch: most layouts per solver call (None: :func:`default_batch`); devices: "all" or a count of local
     devices to shard each batch over; first_cap (ADMM only): iteration cap
     of a first pass, after which only uncertified layouts are solved again
     with the full budget (0: one pass); chunk: layouts read and grouped at a

@@ -156,6 +156,18 @@ def test_device_budget_is_a_quarter_of_the_device(monkeypatch):
     batch.device_budget.cache_clear()
 
 
+def test_default_batch_by_device():
+    """No --batch: 64 on a CPU, where the cache rule holds every bucket below
+    it anyway, and ACCELERATOR_BATCH on an accelerator."""
+    from stablelego_jax.batch import ACCELERATOR_BATCH, default_batch
+
+    assert default_batch(cpu=True) == 64
+    assert default_batch(cpu=False) == ACCELERATOR_BATCH == 1024
+    assert default_batch() == 64  # the tests run on a CPU
+    tiny = plan_bytes(("dense", 8), 64)  # the smallest bucket's working set
+    assert batch_sizes(tiny, ACCELERATOR_BATCH, 1, cpu=True) == batch_sizes(tiny, 64, 1, cpu=True) < 64
+
+
 def test_cpu_batches_stay_within_a_cores_cache():
     """On a CPU each core's share of a batch fits CPU_CACHE_BYTES, at least
     one layout a device: a tiny bucket still batches, a 40-brick one does not."""

@@ -25,8 +25,10 @@ def add_parser(sub, methods, exact_methods) -> None:
     sc.add_argument("--exact-method", choices=list(exact_methods), default="highs",
                     help="HiGHS method of --solver exact where it solves the LP (default highs: HiGHS chooses); "
                          "the canonical distribution (the default) is solved by Clarabel whatever this says")
-    sc.add_argument("--batch", type=int, default=64, help="most layouts per solver call (default 64; on a CPU fewer: a "
-                    "batch holds each core's share within 4 MB, one layout a call for all but the smallest)")
+    sc.add_argument("--batch", type=int, default=None,
+                    help="most layouts per solver call (default: 64 on a CPU, where fewer go: a batch holds each "
+                         "core's share within 4 MB, one layout a call for all but the smallest; 1024 on an "
+                         "accelerator, within a quarter of its memory)")
     sc.add_argument("--devices", default="all", help="'all' or the number of local devices to shard over")
     sc.add_argument("--jobs", type=int, default=None,
                     help="worker processes, every solver, from 32 layouts up (default: every core); "
@@ -53,7 +55,7 @@ def cmd_score(args) -> int:
     from ..analysis import pick_solver
     from ..batch import score_files
 
-    if args.batch < 1:
+    if args.batch is not None and args.batch < 1:
         print("error: --batch must be >= 1", file=sys.stderr)
         return 2
     try:
