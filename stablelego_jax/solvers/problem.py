@@ -813,7 +813,8 @@ def fit_plan(model: ForceModel, key: tuple, m_pad: int | None = None) -> tuple:
     else:
         z = slab_levels(model) if key[0] == "slabs" else layer_levels(model)
         fit = (key[0], len(np.unique(z)), -(-int(np.bincount(z).max()) // 8) * 8) + key[3:]
-        if fit[0] == "layered":
+        # the supports can only pay from SUPPORTS_RATIO at the fewest slots on: count them only then
+        if fit[0] == "layered" and 2 * fit[2] ** 2 >= SUPPORTS_RATIO * (SUPPORT_RUNGS[0] + 1) ** 2:
             K = support_rung(support_count(model))
             if 2 * fit[2] ** 2 >= SUPPORTS_RATIO * (K + 1) ** 2:
                 fit += (K,)
