@@ -19,9 +19,10 @@ import sys
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from cores import SUMMARY, agreement, results  # noqa: E402
 
-PAIRS = {"small_jax_first": "small_exact", "small_jax_warm": "small_exact", "shard_jax_first": "shard_exact",
-         "shard_jax_warm": "shard_exact", "shard_jax_batched": "shard_exact",
-         "shard_jax_batched_warm": "shard_exact"}
+
+def reference(name: str) -> str | None:
+    """The HiGHS run a JAX run is compared with: ``SET_exact`` for ``SET_jax_*``."""
+    return name.split("_jax_")[0] + "_exact" if "_jax_" in name else None
 
 
 def main(argv=None) -> None:
@@ -44,7 +45,7 @@ def main(argv=None) -> None:
         if m:
             row.update(solve_s=float(m.group(1)), compile_s=float(m.group(2)), shapes=int(m.group(3)),
                        wall_s=float(m.group(4)))
-        ref_name = PAIRS.get(name)
+        ref_name = reference(name)
         if ref_name and os.path.exists(os.path.join(a.dir, ref_name + ".jsonl")):
             ref = results([os.path.join(a.dir, ref_name + ".jsonl")] + extra.get(ref_name, []))
             row.update(ref=ref_name, **agreement(ref, got))
