@@ -71,7 +71,7 @@ __all__ = ["find_layouts", "read_results", "ScoreStats", "iter_analyses", "analy
            "batch_solver_fn", "batch_sizes", "plan_bytes", "parse_shard", "in_shard", "cpu_cores",
            "RESULT_PREFIX", "SolveUnit", "solve_units", "compiled_ready", "assign_units", "POOL_MIN",
            "auto_split", "ACCELERATOR_SPEEDUP", "ACCELERATOR_COMPILE_S", "CPU_CACHE_BYTES", "CPU_BUDGET_BYTES",
-           "device_budget", "default_batch", "ACCELERATOR_BATCH",
+           "device_budget", "default_batch", "ACCELERATOR_BATCH", "accelerator_compile_s",
            "worker_order", "next_unit", "POOL_DEPTH", "Workers", "jax_pool_size", "exact_parts", "pack_items",
            "PACK_MOST", "solve_unit"]
 
@@ -478,6 +478,17 @@ ACCELERATOR_SPEEDUP = 8.0
 ACCELERATOR_COMPILE_S = 4.0
 
 
+def accelerator_compile_s() -> tuple[float, float]:
+    """(compile, load) of one shape on an accelerator, in the unit
+    :func:`~stablelego_jax.solvers.problem.merge_plans` prices padding in (a
+    CPU core's solve seconds): :data:`ACCELERATOR_COMPILE_S` and
+    :data:`~stablelego_jax.solvers.problem.LOAD_S` times
+    :data:`ACCELERATOR_SPEEDUP`. Priced in a CPU's seconds, an H200's first
+    run of the 1000-layout shard compiled 13 shapes (65 s of its 92 s) to
+    save padding worth 1-2 s of device time (BENCHMARKS.md, session 45)."""
+    return ACCELERATOR_COMPILE_S * ACCELERATOR_SPEEDUP, LOAD_S * ACCELERATOR_SPEEDUP
+
+
 def auto_split(units: Sequence["SolveUnit"], ready=None, n_dev: int = 1,
                compile_s: float | None = None, speedup: float | None = None) -> tuple[list, list]:
     """(items for the exact solver, units for the interior point) of
@@ -555,17 +566,18 @@ def _rungs(bsz: int, count: int, n_dev: int) -> list:
     return [batch_rung(min(bsz, count - b0), n_dev, bsz) for b0 in range(0, count, bsz)]
 
 
-def _pieces(items: list, key: tuple, batch: int, n_dev: int, crows: dict) -> tuple:
+def _pieces(items: list, key: tuple, batch: int, n_dev: int, crows: dict, cpu: bool | None = None) -> tuple:
     """(m_pad, p_pad, c_pad, bsz, padded batch sizes) of one bucket's ``items``
-    (``crows``: each item's column chunks, by index)."""
+    (``crows``: each item's column chunks, by index; ``cpu``: see :func:`batch_sizes`)."""
     m_pad = rung(max(it[2].m for it in items), MIN_COLUMNS)
     p_pad = rung(max(it[2].group.shape[1] for it in items), MIN_SLOTS)
     c_pad = rung(max(crows[it[0]] for it in items), MIN_CHUNKS)
-    bsz = batch_sizes(plan_bytes(key, m_pad), batch, n_dev)
+    bsz = batch_sizes(plan_bytes(key, m_pad), batch, n_dev, cpu=cpu)
     return m_pad, p_pad, c_pad, bsz, set(_rungs(bsz, len(items), n_dev))
 
 
-def solve_units(loaded, solver: str, batch: int, n_dev: int, merge: bool = True, ready=None) -> list:
+def solve_units(loaded, solver: str, batch: int, n_dev: int, merge: bool = True, ready=None,
+                cpu: bool | None = None) -> list:
     """The :class:`SolveUnit` list of compiled layouts ``loaded`` ((i, layout,
     ForceModel)): grouped by solver bucket (dense or layered shape, both
     solvers; interior point: small buckets merged into larger ones when that
@@ -574,7 +586,16 @@ def solve_units(loaded, solver: str, batch: int, n_dev: int, merge: bool = True,
     slot counts and cut into pieces of at most one batch. ``ready(key,
     m_pad, p_pad, c_pad, sizes, model) -> bool`` (optional): whether a bucket's
     batched solvers are compiled already (this process or the disk cache);
-    such a bucket costs no compile, so it is not merged away."""
+    such a bucket costs no compile, so it is not merged away.
+
+    The merge prices padding in a CPU core's solve seconds
+    (:func:`~stablelego_jax.solvers.problem.plan_seconds`). On an
+    accelerator (``cpu`` False; default: JAX's default backend) a compile
+    and a load are priced in the same unit, :func:`accelerator_compile_s`:
+    there solving is about :data:`ACCELERATOR_SPEEDUP` times faster than
+    the estimate and compiling slower than on a CPU, so fewer shapes pay."""
+    if cpu is None:
+        cpu = jax.default_backend() == "cpu"
     groups: dict = {}
     for item in loaded:
         groups.setdefault(solve_plan(item[2]), []).append(item)
@@ -584,12 +605,13 @@ def solve_units(loaded, solver: str, batch: int, n_dev: int, merge: bool = True,
         # merged buckets ran 1.9x longer, a batch iterating until its slowest layout converges)
         done, m_pads = set(), {}
         for k, v in groups.items():
-            m_pads[k], p_pad, c_pad, _, sizes = _pieces(v, k, batch, n_dev, crows)
+            m_pads[k], p_pad, c_pad, _, sizes = _pieces(v, k, batch, n_dev, crows, cpu)
             if ready is not None and ready(k, m_pads[k], p_pad, c_pad, sizes, v[0][2]):
                 done.add(k)
+        priced = {} if cpu else dict(zip(("compile_s", "load_s"), accelerator_compile_s()))
         into = merge_plans({k: [(rung(it[2].n, MIN_BRICKS), *layer_plan(it[2])) for it in v]
                             for k, v in groups.items()}, ready=done, m_pads=m_pads,
-                           pieces=lambda k, m, c: piece_sizes(k, m, c, batch, n_dev))
+                           pieces=lambda k, m, c: piece_sizes(k, m, c, batch, n_dev, cpu=cpu), **priced)
         merged: dict = {}
         for k, v in groups.items():
             merged.setdefault(into[k], []).extend(v)
@@ -597,7 +619,7 @@ def solve_units(loaded, solver: str, batch: int, n_dev: int, merge: bool = True,
     units = []
     for key in sorted(groups):
         items = groups[key]
-        m_pad, p_pad, c_pad, bsz, _ = _pieces(items, key, batch, n_dev, crows)
+        m_pad, p_pad, c_pad, bsz, _ = _pieces(items, key, batch, n_dev, crows, cpu)
         if solver == "jax" and bsz == 1 and key[0] == "dense" and key[1] <= ipm.CUT_MIN:
             units += [SolveUnit(key, m_pad, p_pad, 1, p, c_pad, pack=len(p) > 1)
                       for p in pack_items(items, key[1], m_pad, c_pad, crows)]

@@ -168,6 +168,37 @@ def test_default_batch_by_device():
     assert batch_sizes(tiny, ACCELERATOR_BATCH, 1, cpu=True) == batch_sizes(tiny, 64, 1, cpu=True) < 64
 
 
+def test_accelerator_prices_a_compile_in_cpu_solve_seconds(monkeypatch):
+    """On an accelerator, solve_units' bucket merge prices a compile (and a
+    load) at accelerator_compile_s: padding is priced in a CPU core's solve
+    seconds, and there a device solves ACCELERATOR_SPEEDUP times faster and
+    compiles slower. A CPU keeps compile_seconds. A merge whose padding costs
+    more than a CPU compile but less than an accelerator's happens on the
+    accelerator only."""
+    from stablelego_jax import batch
+    from stablelego_jax.model import Params, compile_layout
+    from stablelego_jax.solvers.problem import DENSE_COMPILE_S, merge_plans, plan_seconds
+
+    comp, load = batch.accelerator_compile_s()
+    assert comp == batch.ACCELERATOR_COMPILE_S * batch.ACCELERATOR_SPEEDUP > DENSE_COMPILE_S
+    assert load == batch.LOAD_S * batch.ACCELERATOR_SPEEDUP
+    seen = []
+    monkeypatch.setattr(batch, "merge_plans", lambda *a, **k: seen.append(k) or merge_plans(*a, **k))
+    lays = [stairs(6)] * 3 + [stairs(14)] * 3
+    loaded = [(i, lay, compile_layout(lay, Params())) for i, lay in enumerate(lays)]
+    batch.solve_units(loaded, "jax", 64, 1, cpu=True)
+    batch.solve_units(loaded, "jax", 64, 1, cpu=False)
+    assert "compile_s" not in seen[0] and "load_s" not in seen[0]
+    assert (seen[1]["compile_s"], seen[1]["load_s"]) == (comp, load)
+    assert batch.solve_units(loaded, "jax", 64, 1) == batch.solve_units(loaded, "jax", 64, 1, cpu=True)
+    # 2000 layouts of dense 16 padded to dense 32 cost more than a CPU compile, less than a device's
+    sizes = {("dense", 16): [(16, 3, 6)] * 2000, ("dense", 32): [(32, 5, 8)] * 2000}
+    pad = 2000 * (plan_seconds(("dense", 32)) - plan_seconds(("dense", 16)))
+    assert DENSE_COMPILE_S < pad < comp
+    assert merge_plans(sizes)[("dense", 16)] == ("dense", 16)
+    assert merge_plans(sizes, compile_s=comp, load_s=load)[("dense", 16)] == ("dense", 32)
+
+
 def test_cpu_batches_stay_within_a_cores_cache():
     """On a CPU each core's share of a batch fits CPU_CACHE_BYTES, at least
     one layout a device: a tiny bucket still batches, a 40-brick one does not."""
