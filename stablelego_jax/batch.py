@@ -192,6 +192,11 @@ def read_results(out: str, key: str = "file") -> dict:
     return done
 
 
+def _on_cpu(cpu: bool | None = None) -> bool:
+    """``cpu`` if given, else whether JAX's default backend is the CPU."""
+    return jax.default_backend() == "cpu" if cpu is None else cpu
+
+
 def plan_bytes(key: tuple, m_pad: int) -> int:
     """Working memory of one layout in a batch (float64 bytes): the reduced
     matrix blocks, their factors and the per-column assembly buffers."""
@@ -220,8 +225,7 @@ def batch_sizes(per_layout: int, batch: int, n_dev: int, mem_budget: float | Non
     20-layer bucket of 76 MB a member, 16x for a 40-brick dense bucket (54x
     at 1024) (an H200, ``benchmarks/batch_rate.py``, BENCHMARKS.md session
     44)."""
-    if cpu is None:
-        cpu = jax.default_backend() == "cpu"
+    cpu = _on_cpu(cpu)
     if mem_budget is None:
         mem_budget = CPU_BUDGET_BYTES if cpu else device_budget()
     cap = mem_budget * n_dev // max(per_layout, 1)
@@ -237,9 +241,7 @@ def default_batch(cpu: bool | None = None) -> int:
     (where :func:`batch_sizes` holds batches far lower anyway),
     :data:`ACCELERATOR_BATCH` on an accelerator (``cpu``; default: JAX's
     default backend)."""
-    if cpu is None:
-        cpu = jax.default_backend() == "cpu"
-    return 64 if cpu else ACCELERATOR_BATCH
+    return 64 if _on_cpu(cpu) else ACCELERATOR_BATCH
 
 
 #: Most layouts per solver call on an accelerator, memory permitting: on an H200 a batch of
@@ -347,7 +349,7 @@ def _device_count(devices) -> int:
     n_dev = jax.local_device_count() if devices in ("all", None) else int(devices)
     if not 1 <= n_dev <= jax.local_device_count():
         raise ValueError(f"--devices {devices}: this machine has {jax.local_device_count()} local device(s)")
-    if n_dev > 1 and jax.default_backend() == "cpu" and lapack_pool_deadlock():
+    if n_dev > 1 and _on_cpu() and lapack_pool_deadlock():
         if devices in ("all", None):
             return 1
         raise ValueError(f"--devices {devices}: several CPU devices deadlock this jaxlib's LAPACK kernels "
@@ -448,7 +450,7 @@ def jax_pool_size(jobs: int, n_dev: int, n_layouts: int) -> int:
     least ``POOL_MIN`` layouts, else 1. On an accelerator (a GPU) JAX runs
     in this process: one process holds the device, and workers would each
     claim its memory."""
-    if n_dev == 1 and n_layouts >= POOL_MIN and jax.default_backend() == "cpu":
+    if n_dev == 1 and n_layouts >= POOL_MIN and _on_cpu():
         return max(1, int(jobs))
     return 1
 
@@ -503,7 +505,7 @@ def auto_split(units: Sequence["SolveUnit"], ready=None, n_dev: int = 1,
     and ``speedup`` default to the bucket kind's
     :func:`~stablelego_jax.solvers.problem.compile_seconds` and 1 on a CPU
     backend, to :data:`ACCELERATOR_COMPILE_S` and :data:`ACCELERATOR_SPEEDUP` elsewhere."""
-    cpu = jax.default_backend() == "cpu"
+    cpu = _on_cpu()
     if speedup is None:
         speedup = 1.0 if cpu else ACCELERATOR_SPEEDUP
     groups: dict = {}
@@ -594,8 +596,7 @@ def solve_units(loaded, solver: str, batch: int, n_dev: int, merge: bool = True,
     and a load are priced in the same unit, :func:`accelerator_compile_s`:
     there solving is about :data:`ACCELERATOR_SPEEDUP` times faster than
     the estimate and compiling slower than on a CPU, so fewer shapes pay."""
-    if cpu is None:
-        cpu = jax.default_backend() == "cpu"
+    cpu = _on_cpu(cpu)
     groups: dict = {}
     for item in loaded:
         groups.setdefault(solve_plan(item[2]), []).append(item)
