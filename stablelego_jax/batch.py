@@ -485,9 +485,10 @@ def accelerator_compile_s() -> tuple[float, float]:
     :func:`~stablelego_jax.solvers.problem.merge_plans` prices padding in (a
     CPU core's solve seconds): :data:`ACCELERATOR_COMPILE_S` and
     :data:`~stablelego_jax.solvers.problem.LOAD_S` times
-    :data:`ACCELERATOR_SPEEDUP`. Priced in a CPU's seconds, an H200's first
-    run of the 1000-layout shard compiled 13 shapes (65 s of its 92 s) to
-    save padding worth 1-2 s of device time (BENCHMARKS.md, session 45)."""
+    :data:`ACCELERATOR_SPEEDUP`. Priced at a CPU's compile seconds, an
+    H200's first run of the 1000-layout shard compiled 13 shapes (65 s of
+    its 92 s), each saving padding worth about 1 s of device time
+    (BENCHMARKS.md, session 45)."""
     return ACCELERATOR_COMPILE_S * ACCELERATOR_SPEEDUP, LOAD_S * ACCELERATOR_SPEEDUP
 
 
