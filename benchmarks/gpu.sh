@@ -4,10 +4,12 @@
 #
 # Usage (on the machine with the GPU, from the repository root):
 #   OUT=DIR bash benchmarks/gpu.sh [STEPS]
-# STEPS: any of env small rate shard loss batch (default: env shard, about
-# 9 minutes: one device call). The steps' defaults fit two calls:
+# STEPS: any of env small rate shard ahead loss batch (default: env shard,
+# about 9 minutes: one device call). The steps' defaults fit two calls:
 #   bash benchmarks/gpu.sh env shard             # ~510 s: JAX first run, warm run, HiGHS on every core
 #   bash benchmarks/gpu.sh env small loss batch  # ~300 s (add rate: ~90 s more)
+# ahead: two first runs of the shard, shapes compiled one after the other
+# (STABLELEGO_COMPILE_AHEAD=0), then ahead in threads (the default); ~200 s.
 # HiGHS on the shard took 272 s on 16 cores of an H200 machine (session 44),
 # so a shard run needs most of a call by itself.
 #
@@ -91,6 +93,14 @@ rate)
         --sizes 1 64 1024 --seconds 2 --max-gb 60 --json "$R/rate.json" 2>"$R/rate.err" | tee -a "$LOG"
     say "  exit ${PIPESTATUS[0]}"
     pack
+    ;;
+ahead)
+    # the shard's first run with the shapes compiled one after the other, then ahead in threads
+    # (batch.compile_ahead, the default on an accelerator), each with its own empty cache
+    export STABLELEGO_CACHE_DIR=$CACHE/ahead0
+    STABLELEGO_COMPILE_AHEAD=0 score "$SHARD" shard_jax_serial "${SHARD_S:-140}" jax
+    export STABLELEGO_CACHE_DIR=$CACHE/ahead1
+    score "$SHARD" shard_jax_ahead "${SHARD_S:-140}" jax
     ;;
 shard)
     export STABLELEGO_CACHE_DIR=$CACHE/shard

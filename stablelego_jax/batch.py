@@ -45,7 +45,7 @@ from .model import Params, compile_layout, pack_models
 from .progress import Progress
 from .score import eq9_cost
 from .solvers import admm, ipm
-from .solvers.compiled import STATS, available, compiled
+from .solvers.compiled import STATS, available, cache_limit, compiled
 from .solvers.exact import estimated_seconds
 from .solvers.problem import (
     LOAD_S,
@@ -73,7 +73,7 @@ __all__ = ["find_layouts", "read_results", "ScoreStats", "iter_analyses", "analy
            "auto_split", "ACCELERATOR_SPEEDUP", "ACCELERATOR_COMPILE_S", "CPU_CACHE_BYTES", "CPU_BUDGET_BYTES",
            "device_budget", "default_batch", "ACCELERATOR_BATCH", "accelerator_compile_s",
            "worker_order", "next_unit", "POOL_DEPTH", "Workers", "jax_pool_size", "exact_parts", "pack_items",
-           "PACK_MOST", "solve_unit"]
+           "PACK_MOST", "solve_unit", "compile_ahead", "ahead_specs", "ahead_threads", "AHEAD_THREADS"]
 
 LAYOUT_EXTS = (".json", ".txt", ".ldr")
 # files that sit beside StableLego layouts but are not layouts
@@ -440,8 +440,85 @@ def iter_analyses(
     if jobs > 1:
         yield from _jax_pool(units, jobs, solver, params, opts, first_cap, fallback, st, ready, workers)
         return
-    for unit in units:
-        yield from solve_unit(unit, solver, params, opts, n_dev, first_cap, fallback, st)
+    ahead = compile_ahead(units, params, opts, n_dev) if solver == "jax" and not _on_cpu() else None
+    c0, s0 = (STATS.compiles, STATS.compile_s), (st.compiles, st.compile_s)
+    try:
+        for unit in units:
+            yield from solve_unit(unit, solver, params, opts, n_dev, first_cap, fallback, st)
+    finally:
+        if ahead is not None:
+            ahead.shutdown(wait=True, cancel_futures=True)
+            # every compile of the run, the threads' included (a solve saw only those it waited for)
+            st.compiles, st.compile_s = s0[0] + STATS.compiles - c0[0], s0[1] + STATS.compile_s - c0[1]
+
+
+#: Most threads compiling ahead on an accelerator (:func:`compile_ahead`); the
+#: environment variable ``STABLELEGO_COMPILE_AHEAD`` sets another count (0: none).
+AHEAD_THREADS = 8
+
+
+def ahead_threads() -> int:
+    """Threads :func:`compile_ahead` may use: ``STABLELEGO_COMPILE_AHEAD``
+    when set (a count; 0 turns it off), else :data:`AHEAD_THREADS`, at most
+    one less than the cores (the main thread solves meanwhile)."""
+    text = os.environ.get("STABLELEGO_COMPILE_AHEAD", "").strip()
+    if text:
+        try:
+            return max(0, int(text))
+        except ValueError:
+            raise ValueError(f"STABLELEGO_COMPILE_AHEAD={text!r}: expected a number of threads (0: off)") from None
+    return max(0, min(AHEAD_THREADS, cpu_cores() - 1))
+
+
+def ahead_specs(units: Sequence[SolveUnit], opts, n_dev: int) -> list:
+    """The argument shapes (``jax.ShapeDtypeStruct``) of each distinct
+    batched interior-point executable that solving ``units`` in order asks
+    for (:func:`solve_unit`'s first pass: each unit's pieces, padded to
+    their batch sizes), first asked first. Packed units are left out."""
+    out, seen = [], set()
+    for u in units:
+        if u.pack:
+            continue
+        sizes = [z for z in dict.fromkeys(_rungs(u.bsz, len(u.items), n_dev)) if (u.shape, z) not in seen]
+        if not sizes:
+            continue
+        one = plan_problem(u.items[0][2], u.key, u.m_pad, u.p_pad, u.c_pad)[1]
+        arrays = [a for a in stack_problems([one]) if a is not None]
+        for z in sizes:
+            seen.add((u.shape, z))
+            out.append(tuple(jax.ShapeDtypeStruct((z,) + a.shape[1:], a.dtype) for a in arrays))
+    return out
+
+
+def compile_ahead(units: Sequence[SolveUnit], params: Params, opts, n_dev: int,
+                  threads: int | None = None) -> "concurrent.futures.ThreadPoolExecutor | None":
+    """Compile (or load from disk) the batched interior point's executables
+    that solving ``units`` in order will ask for (:func:`ahead_specs`; at
+    most half the in-process executable cache), in ``threads`` background
+    threads (default :func:`ahead_threads`), first needed first, so that a
+    process solving on an accelerator compiles its next shapes on the
+    host's cores while the device solves the current one, instead of one
+    after the other. :func:`~stablelego_jax.solvers.compiled.compiled` is
+    thread-safe: a solve that needs a shape still compiling waits for it.
+    Returns the executor (shut it down when done), or None when there is
+    nothing to overlap (at most one shape, or no threads)."""
+    threads = ahead_threads() if threads is None else threads
+    name, o_key = _batch_name(opts)
+    specs = ahead_specs(units, opts, n_dev)[: max(1, cache_limit() // 2)] if threads > 0 else []
+    if len(specs) < 2 or name != "batch-ipm":
+        return None
+    fn = batch_solver_fn(params, o_key, n_dev)
+    ex = concurrent.futures.ThreadPoolExecutor(min(threads, len(specs)), thread_name_prefix="compile-ahead")
+    for sp in specs:
+        ex.submit(_compile_quietly, name, fn, (params, o_key, n_dev), sp, n_dev == 1)
+    return ex
+
+
+def _compile_quietly(name, fn, static, specs, export) -> None:
+    """A background compile: an error is left to the solve that needs the
+    shape (it compiles it again and raises there)."""
+    with contextlib.suppress(Exception):
+        compiled(name, fn, static, specs, export=export)
 
 
 def jax_pool_size(jobs: int, n_dev: int, n_layouts: int) -> int:

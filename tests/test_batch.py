@@ -258,6 +258,47 @@ def test_piece_sizes_are_the_padded_batches_solved():
     assert piece_sizes(("dense", 40), 2184, 3, 64, 1, cpu=True) == [1, 1, 1]
 
 
+def test_accelerator_compiles_ahead_in_threads_with_the_same_answers(monkeypatch):
+    """On an accelerator, one process solves every unit: its shapes are
+    compiled ahead in threads (compile_ahead) while it solves, each once,
+    and the answers are those of the plain loop. Run here on the CPU with
+    the accelerator's path forced."""
+    from stablelego_jax import batch
+    from stablelego_jax.batch import analyze_many
+    from stablelego_jax.model import Params, compile_layout
+    from stablelego_jax.solvers import compiled as C
+    from stablelego_jax.solvers import ipm
+
+    lays = [stairs(3), stairs(6), stairs(14), tower(3), stairs(20)]
+    plain = analyze_many(lays, solver="jax", jobs=1, merge=False)
+    loaded = [(i, lay, compile_layout(lay, Params())) for i, lay in enumerate(lays)]
+    units = batch.solve_units(loaded, "jax", 64, 1, merge=False, cpu=False)
+    specs = batch.ahead_specs(units, ipm.IPMOptions(), 1)
+    assert len(specs) == len({u.shape for u in units}) >= 2  # one batch size a bucket here
+    monkeypatch.setenv("STABLELEGO_CACHE", "0")  # in-process only: every shape really compiles
+    monkeypatch.setenv("STABLELEGO_COMPILE_AHEAD", "2")
+    monkeypatch.setattr(batch, "_on_cpu", lambda cpu=None: False if cpu is None else cpu)
+    C.clear()
+    seen = []
+    real = batch.compile_ahead
+    monkeypatch.setattr(batch, "compile_ahead", lambda *a, **k: seen.append(real(*a, **k)) or seen[-1])
+    st = ScoreStats()
+    before = C.STATS.compiles
+    ahead = analyze_many(lays, solver="jax", jobs=1, merge=False, stats=st)
+    assert seen and seen[0] is not None  # the threads ran
+    assert C.STATS.compiles - before == st.compiles == len(specs)  # each shape once, all counted
+    for a, b in zip(ahead, plain):
+        assert a.stable == b.stable and a.weakest == b.weakest
+        assert a.scores.keys() == b.scores.keys()
+        np.testing.assert_allclose([a.scores[k] for k in a.scores], [b.scores[k] for k in a.scores], atol=1e-12)
+    monkeypatch.setenv("STABLELEGO_COMPILE_AHEAD", "0")
+    assert batch.ahead_threads() == 0 and batch.compile_ahead(units, Params(), ipm.IPMOptions(), 1) is None
+    monkeypatch.setenv("STABLELEGO_COMPILE_AHEAD", "many")
+    with pytest.raises(ValueError, match="STABLELEGO_COMPILE_AHEAD"):
+        batch.ahead_threads()
+    C.clear()
+
+
 def test_sharded_over_four_cpu_devices_matches(shard, tmp_path):
     """--devices 4 on forced host devices gives the same labels and scores,
     or, on a jaxlib whose LAPACK kernels deadlock several CPU devices, a

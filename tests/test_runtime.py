@@ -164,6 +164,40 @@ def test_executables_are_bounded(monkeypatch):
         C.clear()
 
 
+def test_compiled_from_threads_compiles_each_key_once(monkeypatch):
+    """Threads asking for one key while it compiles wait for that compile
+    (one trace, one executable); other keys compile beside it; shapes may
+    be given as ``jax.ShapeDtypeStruct``."""
+    import threading
+    import time
+    from concurrent.futures import ThreadPoolExecutor
+
+    monkeypatch.setenv("STABLELEGO_CACHE", "0")  # in-process only
+    C.clear()
+    traces = []
+    lock = threading.Lock()
+
+    def f(x):
+        with lock:
+            traces.append(x.shape)
+        time.sleep(0.3)  # a slow trace: the other threads arrive while it is in flight
+        return (x + 1.0,)
+
+    before = C.STATS.compiles
+    spec = lambda k: (jax.ShapeDtypeStruct((k,), np.float64),)  # noqa: E731
+    try:
+        with ThreadPoolExecutor(4) as ex:
+            exes = list(ex.map(lambda k: C.compiled("plus", f, None, spec(k)), [3, 3, 3, 4]))
+        assert C.STATS.compiles == before + 2
+        assert sorted(traces) == [(3,), (4,)]
+        assert exes[0] is exes[1] is exes[2]
+        np.testing.assert_allclose(np.asarray(exes[3](np.zeros(4))[0]), 1.0)
+        assert C.compiled("plus", f, None, (np.zeros(3),)) is exes[0]  # arrays or specs: one key
+        assert C.available("plus", None, spec(4), export=False)
+    finally:
+        C.clear()
+
+
 def test_available_says_whether_compiled_would_compile(monkeypatch, tmp_path):
     """``available``: held in this process, or exported on disk by an
     earlier compile (another process); a new shape or setting is not."""

@@ -17,7 +17,10 @@ the function's name and static settings, the argument shapes and dtypes,
 the JAX version, the backend and a digest of the library's source code, so
 a changed solver never meets a stale entry.
 
-Compiles are counted (:data:`STATS`) so batch runs report compile time
+:func:`compiled` may be called from several threads (``score`` on an
+accelerator compiles its shapes ahead in threads while it solves): a key
+being compiled by one thread is waited for by the others, never compiled
+twice. Compiles are counted (:data:`STATS`) so batch runs report compile time
 apart from solve time. After each compile that traced the function (not
 read from disk) JAX's tracing and lowering caches are emptied
 (:func:`drop_tracing_caches`; the executables stay), and after every
@@ -36,6 +39,7 @@ import dataclasses
 import functools
 import hashlib
 import os
+import threading
 import time
 from typing import Callable, Hashable
 
@@ -45,7 +49,8 @@ import numpy as np
 from ..files import atomic_write
 from ..runtime import cache_dir, compiler_options, float64, use_persistent_cache
 
-__all__ = ["CompileStats", "STATS", "compiled", "available", "clear", "set_limit", "cache_size", "code_digest",
+__all__ = ["CompileStats", "STATS", "compiled", "available", "clear", "set_limit", "cache_limit", "cache_size",
+           "code_digest",
            "map_budget", "mappings", "release_memory", "drop_tracing_caches"]
 
 
@@ -70,14 +75,22 @@ class CompileStats:
 STATS = CompileStats()
 _CACHE: "collections.OrderedDict[tuple, Callable]" = collections.OrderedDict()
 _LIMIT = {"n": 32}
+_LOCK = threading.RLock()  # _CACHE, _FLIGHT and STATS
+_FLIGHT: "dict[tuple, threading.Event]" = {}  # keys being compiled, set when done
 
 
 def set_limit(n: int) -> None:
     """Keep at most ``n`` (>= 1) executables in this process."""
     if n < 1:
         raise ValueError(f"the executable cache needs room for at least 1, got {n}")
-    _LIMIT["n"] = int(n)
-    _evict()
+    with _LOCK:
+        _LIMIT["n"] = int(n)
+        _evict()
+
+
+def cache_limit() -> int:
+    """Most executables this process keeps (:func:`set_limit`)."""
+    return _LIMIT["n"]
 
 
 def cache_size() -> int:
@@ -87,7 +100,8 @@ def cache_size() -> int:
 
 def clear() -> None:
     """Drop every executable of this process."""
-    _CACHE.clear()
+    with _LOCK:
+        _CACHE.clear()
 
 
 @functools.lru_cache(maxsize=1)
@@ -120,7 +134,8 @@ def release_memory() -> bool:
     if trim is None:
         return False
     trim(0)
-    STATS.released += 1
+    with _LOCK:
+        STATS.released += 1
     return True
 
 
@@ -138,7 +153,8 @@ def drop_tracing_caches() -> bool:
         jax_util.clear_all_caches()
     except (ImportError, AttributeError):
         return False
-    STATS.dropped += 1
+    with _LOCK:
+        STATS.dropped += 1
     return True
 
 
@@ -178,7 +194,8 @@ def code_digest() -> str:
 
 
 def _specs(args) -> tuple:
-    return tuple(jax.ShapeDtypeStruct(np.shape(a), np.result_type(a)) for a in args)
+    return tuple(a if isinstance(a, jax.ShapeDtypeStruct) else jax.ShapeDtypeStruct(np.shape(a), np.result_type(a))
+                 for a in args)
 
 
 def _key(name: str, static: Hashable, specs: tuple) -> tuple:
@@ -190,7 +207,7 @@ def available(name: str, static: Hashable, specs, export: bool = True) -> bool:
     this process, or, with ``export``, its export on disk, written when it
     was first compiled, next to XLA's code for it) instead of tracing and
     compiling it. ``specs``: ``jax.ShapeDtypeStruct`` of the arguments."""
-    key = _key(name, static, tuple(specs))
+    key = _key(name, static, tuple(_specs(specs)))
     if key in _CACHE:
         return True
     path = _export_path(name, key) if export else None
@@ -205,13 +222,13 @@ def _export_path(name: str, key: tuple) -> str | None:
     return os.path.join(d, "exported", f"{name}-{hashlib.sha256(text.encode()).hexdigest()[:32]}.bin")
 
 
-def _exported_call(name: str, fn: Callable, key: tuple, specs: tuple) -> Callable | None:
-    """``exp.call`` of the function exported once (read from disk, or
-    traced, lowered and written there now); None when the disk cache is off
-    or export is unavailable."""
+def _exported_call(name: str, fn: Callable, key: tuple, specs: tuple) -> tuple[Callable | None, bool]:
+    """(``exp.call`` of the function exported once (read from disk, or
+    traced, lowered and written there now), whether it was read from disk);
+    (None, False) when the disk cache is off or export is unavailable."""
     path = _export_path(name, key)
     if path is None:
-        return None
+        return None, False
     try:
         from jax import export as jexport
 
@@ -219,51 +236,67 @@ def _exported_call(name: str, fn: Callable, key: tuple, specs: tuple) -> Callabl
             try:
                 with open(path, "rb") as fh:
                     exp = jexport.deserialize(bytearray(fh.read()))
-                STATS.loaded += 1
-                return exp.call
+                with _LOCK:
+                    STATS.loaded += 1
+                return exp.call, True
             except Exception:  # a torn or foreign entry: export again
                 pass
         exp = jexport.export(jax.jit(fn))(*specs)
         blob = exp.serialize()
         os.makedirs(os.path.dirname(path), exist_ok=True)
         atomic_write(path, lambda fh: fh.write(blob), binary=True)
-        return exp.call
+        return exp.call, False
     except (ImportError, OSError):
-        return None
+        return None, False
 
 
 def compiled(name: str, fn: Callable, static: Hashable, args, export: bool = True) -> Callable:
     """An executable of ``fn`` (a pure function of the flat arrays ``args``,
     returning a tuple of arrays) compiled in float64 for their shapes and
-    dtypes, with the library's XLA options
+    dtypes (``args`` may also be ``jax.ShapeDtypeStruct``), with the library's XLA options
     (:func:`~stablelego_jax.runtime.compiler_options`). ``name`` and
     ``static`` (hashable: everything ``fn`` closes
     over, e.g. parameters and options) identify it. ``export``: also use
-    the disk export cache (functions on one device)."""
+    the disk export cache (functions on one device). Thread-safe: a call
+    for a key another thread is compiling waits for that compile."""
     specs = _specs(args)
     key = _key(name, static, specs)
-    exe = _CACHE.get(key)
-    if exe is not None:
-        _CACHE.move_to_end(key)
-        STATS.hits += 1
-        return exe
-    t0 = time.perf_counter()
-    use_persistent_cache()
-    with float64():
-        loaded = STATS.loaded
-        call = _exported_call(name, fn, key, specs) if export else None
-        traced = STATS.loaded == loaded  # fn was traced here, not read from disk
-        aot = jax.jit(call if call is not None else fn).lower(*specs).compile(compiler_options())
-    STATS.compiles += 1
-    STATS.compile_s += time.perf_counter() - t0
+    with _LOCK:
+        exe = _CACHE.get(key)
+        if exe is not None:
+            _CACHE.move_to_end(key)
+            STATS.hits += 1
+            return exe
+        flight = _FLIGHT.get(key)
+        if flight is None:
+            _FLIGHT[key] = threading.Event()
+    if flight is not None:  # another thread compiles it: wait, then take it (or compile it, had that failed)
+        flight.wait()
+        return compiled(name, fn, static, args, export)
+    try:
+        t0 = time.perf_counter()
+        use_persistent_cache()
+        with float64():
+            call, from_disk = _exported_call(name, fn, key, specs) if export else (None, False)
+            traced = not from_disk  # fn was traced here, not read from disk
+            aot = jax.jit(call if call is not None else fn).lower(*specs).compile(compiler_options())
 
-    def exe(*arrays):
-        with float64():  # float64 inputs stay float64 whatever the caller's setting
-            return aot(*arrays)
+        def exe(*arrays):
+            with float64():  # float64 inputs stay float64 whatever the caller's setting
+                return aot(*arrays)
 
-    _CACHE[key] = exe
-    _evict()
-    if traced:  # a load from disk leaves little behind, and emptying would cost a warm run seconds
+        with _LOCK:
+            STATS.compiles += 1
+            STATS.compile_s += time.perf_counter() - t0
+            _CACHE[key] = exe
+            _evict()
+    finally:
+        with _LOCK:
+            _FLIGHT.pop(key).set()
+            alone = not _FLIGHT
+    # a load from disk leaves little behind, and emptying would cost a warm run seconds;
+    # not while another thread traces
+    if traced and alone:
         drop_tracing_caches()
     release_memory()
     return exe
