@@ -442,12 +442,15 @@ def iter_analyses(
         return
     ahead = compile_ahead(units, params, opts, n_dev) if solver == "jax" and not _on_cpu() else None
     c0, s0 = (STATS.compiles, STATS.compile_s), (st.compiles, st.compile_s)
+    done = False
     try:
         for unit in units:
             yield from solve_unit(unit, solver, params, opts, n_dev, first_cap, fallback, st)
+        done = True
     finally:
         if ahead is not None:
-            ahead.shutdown(wait=True, cancel_futures=True)
+            # interrupted: no waiting for a compile nobody needs now
+            ahead.shutdown(wait=done, cancel_futures=True)
             # every compile of the run, the threads' included (a solve saw only those it waited for)
             st.compiles, st.compile_s = s0[0] + STATS.compiles - c0[0], s0[1] + STATS.compile_s - c0[1]
 
