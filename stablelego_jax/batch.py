@@ -403,7 +403,8 @@ def iter_analyses(
     compile time, compiles and non-converged counts. An Analysis of a JAX
     solver has ``time_s`` = its share of its batch(es) and ``iters``.
     ``jax_jobs``: worker processes of the JAX solvers (None: ``jobs``;
-    :func:`jax_pool_size`: on a GPU, none).
+    :func:`jax_pool_size`: on a GPU, none; there the interior point's shapes
+    are compiled ahead in threads while it solves, :func:`compile_ahead`).
     ``fallback``: a layout the JAX solver leaves unconverged is solved
     again, alone (:func:`~stablelego_jax.analysis.resolve_unconverged`: a
     longer run, then the exact solver; its ``solver`` says which answered,
@@ -473,7 +474,7 @@ def ahead_threads() -> int:
     return max(0, min(AHEAD_THREADS, cpu_cores() - 1))
 
 
-def ahead_specs(units: Sequence[SolveUnit], opts, n_dev: int) -> list:
+def ahead_specs(units: Sequence[SolveUnit], n_dev: int) -> list:
     """The argument shapes (``jax.ShapeDtypeStruct``) of each distinct
     batched interior-point executable that solving ``units`` in order asks
     for (:func:`solve_unit`'s first pass: each unit's pieces, padded to
@@ -507,7 +508,7 @@ def compile_ahead(units: Sequence[SolveUnit], params: Params, opts, n_dev: int,
     nothing to overlap (at most one shape, or no threads)."""
     threads = ahead_threads() if threads is None else threads
     name, o_key = _batch_name(opts)
-    specs = ahead_specs(units, opts, n_dev)[: max(1, cache_limit() // 2)] if threads > 0 else []
+    specs = ahead_specs(units, n_dev)[: max(1, cache_limit() // 2)] if threads > 0 else []
     if len(specs) < 2 or name != "batch-ipm":
         return None
     fn = batch_solver_fn(params, o_key, n_dev)

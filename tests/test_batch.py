@@ -273,7 +273,7 @@ def test_accelerator_compiles_ahead_in_threads_with_the_same_answers(monkeypatch
     plain = analyze_many(lays, solver="jax", jobs=1, merge=False)
     loaded = [(i, lay, compile_layout(lay, Params())) for i, lay in enumerate(lays)]
     units = batch.solve_units(loaded, "jax", 64, 1, merge=False, cpu=False)
-    specs = batch.ahead_specs(units, ipm.IPMOptions(), 1)
+    specs = batch.ahead_specs(units, 1)
     assert len(specs) == len({u.shape for u in units}) >= 2  # one batch size a bucket here
     monkeypatch.setenv("STABLELEGO_CACHE", "0")  # in-process only: every shape really compiles
     monkeypatch.setenv("STABLELEGO_COMPILE_AHEAD", "2")
