@@ -759,6 +759,13 @@ def support_rung(k: int) -> int:
 SUPPORTS_RATIO = 500
 
 
+def _supports_pay(B: int, K: int) -> bool:
+    """Whether a layer of ``B`` slots assembles its bricks' rank-one terms
+    more cheaply from ``K`` support slots a brick than as the product:
+    ``2 B^2 / (K + 1)^2 >= SUPPORTS_RATIO``."""
+    return 2 * B ** 2 >= SUPPORTS_RATIO * (K + 1) ** 2
+
+
 #: Layouts of at most this many (padded) bricks are always solved dense.
 DENSE_MAX = 48
 
@@ -813,10 +820,10 @@ def fit_plan(model: ForceModel, key: tuple, m_pad: int | None = None) -> tuple:
     else:
         z = slab_levels(model) if key[0] == "slabs" else layer_levels(model)
         fit = (key[0], len(np.unique(z)), -(-int(np.bincount(z).max()) // 8) * 8) + key[3:]
-        # the supports can only pay from SUPPORTS_RATIO at the fewest slots on: count them only then
-        if fit[0] == "layered" and 2 * fit[2] ** 2 >= SUPPORTS_RATIO * (SUPPORT_RUNGS[0] + 1) ** 2:
+        # the supports can only pay from the fewest slots on: count them only then
+        if fit[0] == "layered" and _supports_pay(fit[2], SUPPORT_RUNGS[0]):
             K = support_rung(support_count(model))
-            if 2 * fit[2] ** 2 >= SUPPORTS_RATIO * (K + 1) ** 2:
+            if _supports_pay(fit[2], K):
                 fit += (K,)
     if plan_seconds(key, m_pad) - plan_seconds(fit, m_pad) > SINGLE_COMPILE_S:
         return fit
