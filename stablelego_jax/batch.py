@@ -73,7 +73,7 @@ __all__ = ["find_layouts", "read_results", "ScoreStats", "iter_analyses", "analy
            "auto_split", "ACCELERATOR_SPEEDUP", "ACCELERATOR_COMPILE_S", "CPU_CACHE_BYTES", "CPU_BUDGET_BYTES",
            "device_budget", "default_batch", "ACCELERATOR_BATCH", "accelerator_compile_s",
            "worker_order", "next_unit", "POOL_DEPTH", "Workers", "jax_pool_size", "exact_parts", "pack_items",
-           "PACK_MOST", "solve_unit", "compile_ahead", "ahead_specs", "ahead_threads", "AHEAD_THREADS"]
+           "PACK_MOST", "solve_unit", "compile_ahead", "ahead_specs", "ahead_threads", "AHEAD_THREADS", "batch_specs"]
 
 LAYOUT_EXTS = (".json", ".txt", ".ldr")
 # files that sit beside StableLego layouts but are not layouts
@@ -441,7 +441,7 @@ def iter_analyses(
     if jobs > 1:
         yield from _jax_pool(units, jobs, solver, params, opts, first_cap, fallback, st, ready, workers)
         return
-    ahead = compile_ahead(units, params, opts, n_dev) if solver == "jax" and not _on_cpu() else None
+    ahead = None if _on_cpu() else compile_ahead(units, params, opts, n_dev)  # the interior point only
     c0, s0 = (STATS.compiles, STATS.compile_s), (st.compiles, st.compile_s)
     done = False
     try:
@@ -481,16 +481,11 @@ def ahead_specs(units: Sequence[SolveUnit], n_dev: int) -> list:
     their batch sizes), first asked first. Packed units are left out."""
     out, seen = [], set()
     for u in units:
-        if u.pack:
-            continue
         sizes = [z for z in dict.fromkeys(_rungs(u.bsz, len(u.items), n_dev)) if (u.shape, z) not in seen]
-        if not sizes:
+        if u.pack or not sizes:
             continue
-        one = plan_problem(u.items[0][2], u.key, u.m_pad, u.p_pad, u.c_pad)[1]
-        arrays = [a for a in stack_problems([one]) if a is not None]
-        for z in sizes:
-            seen.add((u.shape, z))
-            out.append(tuple(jax.ShapeDtypeStruct((z,) + a.shape[1:], a.dtype) for a in arrays))
+        seen.update((u.shape, z) for z in sizes)
+        out += batch_specs(u.items[0][2], u.key, u.m_pad, u.p_pad, u.c_pad, sizes, "batch-ipm")
     return out
 
 
@@ -508,8 +503,8 @@ def compile_ahead(units: Sequence[SolveUnit], params: Params, opts, n_dev: int,
     nothing to overlap (at most one shape, or no threads)."""
     threads = ahead_threads() if threads is None else threads
     name, o_key = _batch_name(opts)
-    specs = ahead_specs(units, n_dev)[: max(1, cache_limit() // 2)] if threads > 0 else []
-    if len(specs) < 2 or name != "batch-ipm":
+    specs = ahead_specs(units, n_dev)[: max(1, cache_limit() // 2)] if threads > 0 and name == "batch-ipm" else []
+    if len(specs) < 2:
         return None
     fn = batch_solver_fn(params, o_key, n_dev)
     ex = concurrent.futures.ThreadPoolExecutor(min(threads, len(specs)), thread_name_prefix="compile-ahead")
@@ -752,6 +747,22 @@ def _batch_name(opts) -> tuple:
     return "batch-admm", dataclasses.replace(opts, max_iter=0)
 
 
+def batch_specs(model, key: tuple, m_pad: int, p_pad: int, c_pad: int | None, sizes, name: str) -> list:
+    """The argument shapes (``jax.ShapeDtypeStruct``) of the batched solver
+    ``name`` (:func:`_batch_name`) for layouts like ``model`` padded to
+    ``key``, ``m_pad``, ``p_pad`` and ``c_pad``, at each batch size of
+    ``sizes``: one tuple a size, as :func:`solve_unit` passes its arrays
+    (ADMM: and each problem's iteration cap)."""
+    arrays = [a for a in plan_problem(model, key, m_pad, p_pad, c_pad)[1] if a is not None]
+    out = []
+    for size in sizes:
+        specs = [jax.ShapeDtypeStruct((size,) + np.shape(a), np.result_type(a)) for a in arrays]
+        if name == "batch-admm":
+            specs.append(jax.ShapeDtypeStruct((size,), np.int32))
+        out.append(tuple(specs))
+    return out
+
+
 def compiled_ready(params: Params, opts, n_dev: int):
     """The ``ready`` test of :func:`solve_units` for the batched solver of
     ``opts`` on ``n_dev`` devices: every batch size of the bucket has its
@@ -763,14 +774,8 @@ def compiled_ready(params: Params, opts, n_dev: int):
     seen: dict = {}
 
     def look(key, m_pad, p_pad, c_pad, sizes, model) -> bool:
-        arrays = [a for a in plan_problem(model, key, m_pad, p_pad, c_pad)[1] if a is not None]
-        for size in sizes:
-            specs = [jax.ShapeDtypeStruct((size,) + np.shape(a), np.result_type(a)) for a in arrays]
-            if name == "batch-admm":
-                specs.append(jax.ShapeDtypeStruct((size,), np.int32))
-            if not available(name, (params, o_key, n_dev), specs, export=n_dev == 1):
-                return False
-        return True
+        return all(available(name, (params, o_key, n_dev), specs, export=n_dev == 1)
+                   for specs in batch_specs(model, key, m_pad, p_pad, c_pad, sizes, name))
 
     def ready(key, m_pad, p_pad, c_pad, sizes, model) -> bool:
         tag = (key, m_pad, p_pad, c_pad, frozenset(sizes))
