@@ -30,7 +30,12 @@ more than 5% off; the better of the two) on ``--fd`` random candidate
 weights, the ``--fd`` candidate weights with the largest gradients, 2
 random loads and the load with the largest gradient;
 components below 1e-3 of the largest gradient component are compared in
-absolute terms. Prints one JSON object (``--json``) or a line.
+absolute terms; ``pool_threads`` and ``jaxlib``: XLA's CPU pool and the
+jaxlib the run had. Prints one JSON object (``--json``) or a line.
+
+Threads: the package keeps XLA's CPU pool at one thread on jaxlib 0.10 to
+0.11.1 (:mod:`stablelego_jax.blas`); an unbatched run may use every core
+with ``PJRT_NPROC=2`` (this 2-core box), ``--batch`` may not (a clear error).
 """
 from __future__ import annotations
 
@@ -50,6 +55,7 @@ import numpy as np  # noqa: E402
 
 jax.config.update("jax_enable_x64", True)
 
+from stablelego_jax.blas import check_batched_linalg, installed_jaxlib_version, pool_threads  # noqa: E402
 from stablelego_jax.generate.mesh import mesh_to_voxels  # noqa: E402
 from stablelego_jax.generate.voxels import merge_voxels  # noqa: E402
 from stablelego_jax.loss import LossOptions, soft_report  # noqa: E402
@@ -200,6 +206,7 @@ def main(argv=None) -> int:
         fd_checked_grads=[float(gw[i] if w_ == 'w' else gl[i]) for w_, i in picks] if errs else [],
         fd_errs=[float(e) for e in errs],
         peak_mb=round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0, 1),
+        pool_threads=pool_threads(), jaxlib=installed_jaxlib_version(),
     )
     if a.json:
         print(json.dumps(out))
@@ -216,6 +223,10 @@ def batch(a) -> int:
     the rest (a layout that stands has a loss at the barrier's floor, the
     smoothed equilibrium residual at mu, ~1e-7..1e-5, which the stopping
     rule pins only to its tolerance)."""
+    try:
+        check_batched_linalg(a.batch)  # a clear error, not a hang (stablelego_jax.blas)
+    except RuntimeError as exc:
+        raise SystemExit(f"error: {exc}") from None
     insts = [soft_instance(a.mesh, a.grid, a.up, a.placements, a.seed + i) for i in range(a.batch)]
     plans = [soft_layer_plan(p) for p, *_ in insts]
     LB = (max(p[0] for p in plans), max(p[1] for p in plans))

@@ -22,7 +22,10 @@ the caller's JAX configuration is never changed, with one exception: on
 jaxlib 0.10 to 0.11.1, importing the package sets ``PJRT_NPROC=1`` (one
 thread in XLA's CPU intra-op pool) unless ``PJRT_NPROC`` or ``NPROC`` is set,
 because those versions' batched LAPACK kernels can deadlock a larger pool
-(:func:`stablelego_jax.blas.one_xla_pool_thread`).
+(:func:`stablelego_jax.blas.one_xla_pool_thread`). Work that solves one
+problem at a time may set it to its cores before the import; the library's
+batched calls then stop with an error rather than hang
+(:func:`stablelego_jax.blas.check_batched_linalg`).
 """
 from __future__ import annotations
 

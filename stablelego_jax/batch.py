@@ -35,7 +35,7 @@ import jax
 import numpy as np
 
 from .analysis import analyze_exact, error_message, make_analysis, pick_solver, resolve_unconverged
-from .blas import lapack_pool_deadlock, one_blas_thread
+from .blas import batched_linalg_hangs, check_batched_linalg, lapack_pool_deadlock, one_blas_thread
 from .files import atomic_write, atomic_write_text, cut, read_text
 from .formats.dataset import score_grid
 from .formats import rows
@@ -224,8 +224,12 @@ def batch_sizes(per_layout: int, batch: int, n_dev: int, mem_budget: float | Non
     64 solved 12x more layouts a second than one at a time even for a
     20-layer bucket of 76 MB a member, 16x for a 40-brick dense bucket (54x
     at 1024) (an H200, ``benchmarks/batch_rate.py``, BENCHMARKS.md session
-    44)."""
+    44). A CPU whose jaxlib deadlocks batched LAPACK calls on its XLA pool
+    (:func:`~stablelego_jax.blas.batched_linalg_hangs`: ``PJRT_NPROC`` set
+    above 1 on jaxlib 0.10-0.11.1) gets one layout a device."""
     cpu = _on_cpu(cpu)
+    if cpu and batched_linalg_hangs():
+        return n_dev  # one layout a device: a batch of one matrix never splits over the pool (blas)
     if mem_budget is None:
         mem_budget = CPU_BUDGET_BYTES if cpu else device_budget()
     cap = mem_budget * n_dev // max(per_layout, 1)
@@ -797,6 +801,8 @@ def solve_unit(unit: SolveUnit, solver: str, params: Params, opts, n_dev: int, f
     def solve_batch(probs, bsz, o):
         """Solve one batch of problems with options ``o``; returns (solution, seconds)."""
         size = batch_rung(len(probs), n_dev, bsz)
+        if _on_cpu():
+            check_batched_linalg(size // n_dev)  # a clear error, not a hang (stablelego_jax.blas)
         probs = probs + [probs[-1]] * (size - len(probs))
         arrays = tuple(a for a in stack_problems(probs) if a is not None)
         name, o_key = _batch_name(o)

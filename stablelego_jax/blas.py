@@ -32,6 +32,19 @@ and went with unrelated changes to the solver's graph.
 pool to one thread (``PJRT_NPROC=1``) on the affected jaxlib versions; with
 one thread the kernels run their batch inline. ``tests/test_blas.py`` keeps a
 reproducer that hangs without it.
+
+Only a kernel with a batch of two or more matrices splits its work: on the
+2-core box four independent unbatched factorisations and triangular solves
+of 720 x 720 in one program, 150 calls, three runs, and a batch of one
+finished with a 2-thread pool; a batch of two hung (BENCHMARKS.md, issue
+18, session 46). A process that solves one problem at a time (one soft
+problem's loss and gradient, a layout solved alone) may therefore set
+``PJRT_NPROC`` to its cores before importing the package: the 2000-placement
+loss of ``benchmarks/loss_scale.py`` then uses both cores of that box.
+On such a pool ``score`` and ``analyze`` solve one layout a call (their
+small layouts still share a call as one packed problem), and
+:func:`check_batched_linalg` turns a hang into an error where the library
+would batch anyway (training; and a last check before every batched solve).
 """
 from __future__ import annotations
 
@@ -39,7 +52,8 @@ import contextlib
 import functools
 
 __all__ = ["one_blas_thread", "openblas_library", "inline_cpu_dispatch", "one_xla_pool_thread",
-           "lapack_pool_deadlock", "installed_jaxlib_version", "LAPACK_POOL_DEADLOCK"]
+           "lapack_pool_deadlock", "installed_jaxlib_version", "LAPACK_POOL_DEADLOCK", "pool_threads",
+           "batched_linalg_hangs", "check_batched_linalg"]
 
 #: jaxlib versions (from, up to but not including) whose CPU LAPACK kernels
 #: block XLA's intra-op pool on their own batch chunks (jaxlib 0.10.2 seen
@@ -68,6 +82,44 @@ def one_xla_pool_thread(environ=None, jaxlib_version: str | None = None) -> bool
         return False
     env["PJRT_NPROC"] = "1"
     return True
+
+
+def pool_threads(environ=None) -> int:
+    """Threads of XLA's CPU intra-op pool in a process started with
+    ``environ`` (default ``os.environ``): ``PJRT_NPROC``, else ``NPROC``,
+    else the cores this process may run on."""
+    import os
+
+    env = os.environ if environ is None else environ
+    for var in ("PJRT_NPROC", "NPROC"):
+        text = env.get(var, "").strip()
+        if text:
+            try:
+                return max(1, int(text))
+            except ValueError:
+                raise ValueError(f"{var}={text!r}: not a thread count") from None
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except (AttributeError, OSError):
+        return max(1, os.cpu_count() or 1)
+
+
+def batched_linalg_hangs(environ=None, jaxlib_version: str | None = None) -> bool:
+    """Whether a CPU LAPACK call on a batch of two or more matrices can
+    deadlock this process: a jaxlib of :data:`LAPACK_POOL_DEADLOCK`'s and
+    more than one pool thread (:func:`pool_threads`; ``environ`` and
+    ``jaxlib_version``: as :func:`one_xla_pool_thread`)."""
+    return lapack_pool_deadlock(jaxlib_version) and pool_threads(environ) > 1
+
+
+def check_batched_linalg(batch: int, environ=None, jaxlib_version: str | None = None) -> None:
+    """Raise ``RuntimeError`` (one line) before a CPU program factorises
+    ``batch`` matrices in one LAPACK call where that would deadlock
+    (:func:`batched_linalg_hangs`, a batch of two or more)."""
+    if batch >= 2 and batched_linalg_hangs(environ, jaxlib_version):
+        raise RuntimeError(
+            f"XLA's CPU pool has {pool_threads(environ)} threads and this jaxlib's batched LAPACK kernels "
+            f"deadlock such a pool on a batch of {batch}: unset PJRT_NPROC (or set it to 1) for batched work")
 
 
 def lapack_pool_deadlock(jaxlib_version: str | None = None) -> bool:

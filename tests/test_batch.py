@@ -771,3 +771,27 @@ def test_a_batch_of_dense_problems_solves_them_as_they_are_solved_alone():
         one = fn(*[a[None] for a in p if a is not None])
         np.testing.assert_allclose(np.asarray(both[0][i]), np.asarray(one[0][0]), rtol=1e-6, atol=1e-8)
         np.testing.assert_allclose(float(both[5][i]), float(one[5][0]), rtol=1e-9, atol=1e-12)
+
+
+def test_a_pool_that_would_hang_gets_batches_of_one_and_the_same_answers(monkeypatch):
+    """On a jaxlib whose batched LAPACK calls deadlock a larger XLA pool
+    (stablelego_jax.blas), a CPU solves one layout a call (tiny layouts
+    batch 8 otherwise), with the answers of the batched solve; a batch of two
+    on such a pool is an error, not a hang."""
+    from stablelego_jax import batch
+    from stablelego_jax.batch import analyze_many
+    from stablelego_jax.blas import check_batched_linalg
+
+    lays = [stairs(2), stairs(3), tower(2), tower(3)] * 2
+    tiny = plan_bytes(("dense", 8), 80)
+    assert batch_sizes(tiny, 64, 1, cpu=True) >= 2
+    plain = analyze_many(lays, solver="jax", jobs=1, merge=False)
+    monkeypatch.setattr(batch, "batched_linalg_hangs", lambda *a, **k: True)
+    assert batch_sizes(tiny, 64, 1, cpu=True) == 1
+    assert batch_sizes(tiny, 64, 1, cpu=False) >= 2  # an accelerator has no such kernels
+    single = analyze_many(lays, solver="jax", jobs=1, merge=False)
+    for a, b in zip(single, plain):
+        assert a.stable == b.stable and a.weakest == b.weakest
+        np.testing.assert_allclose([a.scores[k] for k in a.scores], [b.scores[k] for k in a.scores], atol=1e-9)
+    with pytest.raises(RuntimeError, match="deadlock such a pool on a batch of 2"):
+        check_batched_linalg(2, {"PJRT_NPROC": "2"}, "0.10.2")

@@ -98,3 +98,60 @@ def test_batched_lapack_calls_side_by_side_finish_after_importing_the_package():
         pytest.fail("batched LAPACK calls deadlocked XLA's CPU pool (no answer in 240 s)")
     assert out.returncode == 0, out.stderr[-2000:]
     assert out.stdout.strip() == "done"
+
+
+def test_pool_threads_reads_the_pool_variables_then_the_cores():
+    from stablelego_jax.blas import pool_threads
+
+    assert pool_threads({"PJRT_NPROC": "3", "NPROC": "5"}) == 3
+    assert pool_threads({"NPROC": "5"}) == 5
+    assert pool_threads({"PJRT_NPROC": " "}) == pool_threads({}) >= 1
+    with pytest.raises(ValueError, match="PJRT_NPROC='two'"):
+        pool_threads({"PJRT_NPROC": "two"})
+
+
+def test_batched_linalg_on_a_larger_pool_is_an_error_on_affected_jaxlib_only():
+    from stablelego_jax.blas import check_batched_linalg
+
+    two = {"PJRT_NPROC": "2"}
+    with pytest.raises(RuntimeError, match="deadlock such a pool on a batch of 2"):
+        check_batched_linalg(2, two, "0.10.2")
+    check_batched_linalg(1, two, "0.10.2")  # one matrix a call: never split over the pool
+    check_batched_linalg(64, {"PJRT_NPROC": "1"}, "0.10.2")
+    check_batched_linalg(64, two, "0.11.2")
+
+
+#: four independent unbatched factorisations and triangular solves of
+#: 720 x 720 in one program, 40 times: the kind of calls one soft problem's
+#: loss makes. On jaxlib 0.10.2 with a 2-thread pool this finished in every
+#: try; the same with a batch of two matrices a call hung (session 46).
+UNBATCHED = """
+import jax, jax.numpy as jnp
+from jax.scipy.linalg import solve_triangular
+import stablelego_jax  # noqa: F401
+jax.config.update("jax_enable_x64", True)
+n = 720
+A = [jax.random.normal(k, (n, n)) for k in jax.random.split(jax.random.key(0), 4)]
+L = [jnp.linalg.cholesky(a @ a.T + n * jnp.eye(n)) for a in A]
+f = jax.jit(lambda A, L, x: sum(solve_triangular(Li, x * (i + 1), lower=True).sum()
+                                + jnp.linalg.cholesky(Ai @ Ai.T + n * jnp.eye(n)).sum()
+                                for i, (Ai, Li) in enumerate(zip(A, L))))
+x = jnp.ones((n, n))
+for i in range(40):
+    float(f(A, L, x + i))
+print("done")
+"""
+
+
+def test_unbatched_lapack_calls_side_by_side_finish_on_a_two_thread_pool():
+    """What lets a process that solves one problem at a time use every core:
+    kernels of one matrix do not split over the pool (stablelego_jax.blas)."""
+    env = dict(os.environ, PJRT_NPROC="2")
+    env["PYTHONPATH"] = ROOT + os.pathsep + env.get("PYTHONPATH", "")
+    try:
+        out = subprocess.run([sys.executable, "-c", UNBATCHED], env=env, cwd=ROOT,
+                             capture_output=True, text=True, timeout=240)
+    except subprocess.TimeoutExpired:
+        pytest.fail("unbatched LAPACK calls deadlocked a 2-thread pool (no answer in 240 s)")
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert out.stdout.strip() == "done"

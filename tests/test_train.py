@@ -298,3 +298,18 @@ def test_training_without_optax_is_a_clear_error_and_writes_nothing(tmp_path):
                        env=dict(os.environ, PYTHONPATH=root))
     assert r.returncode == 2 and "optax" in r.stderr and "Traceback" not in r.stderr
     assert not out.exists()
+
+
+def test_training_on_a_pool_that_would_hang_is_a_clear_error(tmp_path, capsys, monkeypatch):
+    """Training solves its batch under vmap: on a jaxlib whose batched LAPACK
+    calls deadlock a larger XLA pool (stablelego_jax.blas), a pool of 2 is a
+    one-line error (exit 2) and nothing is written."""
+    from stablelego_jax.blas import lapack_pool_deadlock
+
+    if not lapack_pool_deadlock():
+        pytest.skip("this jaxlib's batched LAPACK calls do not deadlock a pool")
+    monkeypatch.setenv("PJRT_NPROC", "2")  # what a process with a 2-thread pool would have
+    assert main(["train", "--steps", "1", "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "deadlock" in err and "PJRT_NPROC" in err
+    assert not (tmp_path / "o").exists()
