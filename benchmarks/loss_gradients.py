@@ -65,6 +65,18 @@ GRAD = jax.jit(jax.grad(_loss, argnums=(0, 1)))
 REPORT = jax.jit(lambda w, loads, prob, tau: soft_report(w, loads, prob, tau, opts=OPTS))
 
 
+def central_difference(loss, w, loads, prob, what: str, i: int, h: float) -> float:
+    """``(loss(x + h e_i) - loss(x - h e_i)) / 2 h`` for component ``i`` of
+    the weights (``what="weights"``) or of the loads."""
+    x = w if what == "weights" else loads
+    xp, xm = x.copy(), x.copy()
+    xp[i] += h
+    xm[i] -= h
+    args_p = (xp, loads) if what == "weights" else (w, xp)
+    args_m = (xm, loads) if what == "weights" else (w, xm)
+    return (float(loss(*args_p, prob)) - float(loss(*args_m, prob))) / (2 * h)
+
+
 def fits(lay) -> bool:
     p = soft_problem(lay)
     return lay.n <= SHAPE[0] and p.col_kind.shape[0] <= SHAPE[1] and p.group.shape[1] <= SHAPE[2]
@@ -82,18 +94,11 @@ def fd_case(name, lay, rng):
     loads[li] = rng.uniform(0.0, 0.05, size=len(li))
     gw, gl = (np.asarray(v) for v in GRAD(w, loads, prob))
     out = {"name": name, "n_bricks": n}
-    for what, x, g, pool in (("weights", w, gw, soft_idx), ("loads", loads, gl, np.arange(n))):
+    for what, g, pool in (("weights", gw, soft_idx), ("loads", gl, np.arange(n))):
         idx = rng.choice(pool, size=min(6, len(pool)), replace=False)
 
-        def fd(i, h):
-            xp, xm = x.copy(), x.copy()
-            xp[i] += h
-            xm[i] -= h
-            args_p = (xp, loads) if what == "weights" else (w, xp)
-            args_m = (xm, loads) if what == "weights" else (w, xm)
-            return (float(LOSS(*args_p, prob)) - float(LOSS(*args_m, prob))) / (2 * h)
-
-        fds = np.array([[fd(i, h) for i in idx] for h in STEPS])  # (steps, components)
+        fds = np.array([[central_difference(LOSS, w, loads, prob, what, i, h) for i in idx]
+                        for h in STEPS])  # (steps, components)
         gi = g[idx]
         scale = max(np.abs(fds).max(), 1e-300)
         big = np.abs(fds[0]) > max(1e-3 * scale, FLOOR)
