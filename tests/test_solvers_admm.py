@@ -59,6 +59,21 @@ def test_vmap_batch_matches_single_solves():
         np.testing.assert_allclose(sb, ss, atol=2e-3)
 
 
+def test_a_batch_on_a_pool_that_would_hang_is_a_clear_error(monkeypatch):
+    """On a jaxlib whose batched LAPACK calls deadlock a larger XLA pool
+    (stablelego_jax.blas), a batch of two on a 2-thread pool is a one-line
+    error before anything runs, not a hang."""
+    from stablelego_jax.blas import lapack_pool_deadlock
+
+    if not lapack_pool_deadlock():
+        pytest.skip("this jaxlib's batched LAPACK calls do not deadlock a pool")
+    m = compile_layout(stairs(3))
+    batch = stack_problems([to_problem(m), to_problem(m)])
+    monkeypatch.setenv("PJRT_NPROC", "2")  # what a process with a 2-thread pool would have
+    with pytest.raises(RuntimeError, match="deadlock such a pool on a batch of 2"):
+        solve_batch(batch, m.params, SolverOptions())
+
+
 def test_non_convergence_is_reported():
     path = os.path.join(EXAMPLES, "stablelego", "stair_20.json")
     a = analyze(path, solver="jax", opts=SolverOptions(max_iter=50, check_every=50), fallback=False)

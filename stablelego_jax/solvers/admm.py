@@ -35,6 +35,7 @@ import dataclasses
 import jax
 import jax.numpy as jnp
 
+from ..blas import check_batched_linalg
 from ..model import KNOB, NORMAL, SIDE, Params
 from ..runtime import x64
 from ..score import eq9_cost
@@ -293,5 +294,9 @@ def solve(prob: Problem, params: Params = Params(), opts: SolverOptions = Solver
 
 @x64
 def solve_batch(probs: Problem, params: Params = Params(), opts: SolverOptions = SolverOptions()) -> Solution:
-    """``vmap`` of :func:`solve` over a stacked, equally padded batch."""
+    """``vmap`` of :func:`solve` over a stacked, equally padded batch (on a
+    CPU whose XLA pool would deadlock on it, a one-line ``RuntimeError``:
+    :func:`~stablelego_jax.blas.check_batched_linalg`)."""
+    if jax.default_backend() == "cpu":
+        check_batched_linalg(int(probs.col_kind.shape[0]))
     return jax.vmap(lambda p: solve(p, params, opts))(probs)
