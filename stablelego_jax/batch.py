@@ -801,8 +801,7 @@ def solve_unit(unit: SolveUnit, solver: str, params: Params, opts, n_dev: int, f
     def solve_batch(probs, bsz, o):
         """Solve one batch of problems with options ``o``; returns (solution, seconds)."""
         size = batch_rung(len(probs), n_dev, bsz)
-        if _on_cpu():
-            check_batched_linalg(size // n_dev)  # a clear error, not a hang (stablelego_jax.blas)
+        check_batched_linalg(size // n_dev, cpu=_on_cpu())  # a clear error, not a hang (stablelego_jax.blas)
         probs = probs + [probs[-1]] * (size - len(probs))
         arrays = tuple(a for a in stack_problems(probs) if a is not None)
         name, o_key = _batch_name(o)

@@ -112,11 +112,20 @@ def batched_linalg_hangs(environ=None, jaxlib_version: str | None = None) -> boo
     return lapack_pool_deadlock(jaxlib_version) and pool_threads(environ) > 1
 
 
-def check_batched_linalg(batch: int, environ=None, jaxlib_version: str | None = None) -> None:
-    """Raise ``RuntimeError`` (one line) before a CPU program factorises
+def check_batched_linalg(batch: int, environ=None, jaxlib_version: str | None = None,
+                         cpu: bool | None = None) -> None:
+    """Raise ``RuntimeError`` (one line) before a program factorises
     ``batch`` matrices in one LAPACK call where that would deadlock
-    (:func:`batched_linalg_hangs`, a batch of two or more)."""
-    if batch >= 2 and batched_linalg_hangs(environ, jaxlib_version):
+    (:func:`batched_linalg_hangs`, a batch of two or more) on the CPU
+    (``cpu``; default: whether JAX's default backend is the CPU: an
+    accelerator's kernels are not these)."""
+    if batch < 2 or not batched_linalg_hangs(environ, jaxlib_version):
+        return
+    if cpu is None:
+        import jax
+
+        cpu = jax.default_backend() == "cpu"
+    if cpu:
         raise RuntimeError(
             f"XLA's CPU pool has {pool_threads(environ)} threads and this jaxlib's batched LAPACK kernels "
             f"deadlock such a pool on a batch of {batch}: unset PJRT_NPROC (or set it to 1) for batched work")

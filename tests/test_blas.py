@@ -119,6 +119,7 @@ def test_batched_linalg_on_a_larger_pool_is_an_error_on_affected_jaxlib_only():
     check_batched_linalg(1, two, "0.10.2")  # one matrix a call: never split over the pool
     check_batched_linalg(64, {"PJRT_NPROC": "1"}, "0.10.2")
     check_batched_linalg(64, two, "0.11.2")
+    check_batched_linalg(64, two, "0.10.2", cpu=False)  # an accelerator's kernels are not these
 
 
 #: four independent unbatched factorisations and triangular solves of

@@ -297,6 +297,5 @@ def solve_batch(probs: Problem, params: Params = Params(), opts: SolverOptions =
     """``vmap`` of :func:`solve` over a stacked, equally padded batch (on a
     CPU whose XLA pool would deadlock on it, a one-line ``RuntimeError``:
     :func:`~stablelego_jax.blas.check_batched_linalg`)."""
-    if jax.default_backend() == "cpu":
-        check_batched_linalg(int(probs.col_kind.shape[0]))
+    check_batched_linalg(int(probs.col_kind.shape[0]))
     return jax.vmap(lambda p: solve(p, params, opts))(probs)

@@ -517,13 +517,10 @@ def train(cfg: dict, out: str, resume: bool = False, log=sys.stderr, max_steps: 
     ``max_steps``: stop (with a checkpoint) after this many steps of this
     call, for tests of resuming. Runs in float64 (the library's scope)."""
     probs_fn, step_fn, opt = make_fns(cfg)[:3]  # ConfigError (e.g. no optax) before anything is written
-    import jax
-
-    if jax.default_backend() == "cpu":  # the batch's soft problems are solved under vmap
-        try:
-            check_batched_linalg(cfg["batch"])
-        except RuntimeError as exc:
-            raise ConfigError(str(exc)) from None
+    try:
+        check_batched_linalg(cfg["batch"])  # the batch's soft problems are solved under vmap
+    except RuntimeError as exc:
+        raise ConfigError(str(exc)) from None
     os.makedirs(out, exist_ok=True)
     ckpt = os.path.join(out, "checkpoint.npz")
     if resume and os.path.exists(ckpt):
