@@ -42,9 +42,10 @@ problem's loss and gradient, a layout solved alone) may therefore set
 ``PJRT_NPROC`` to its cores before importing the package: the 2000-placement
 loss of ``benchmarks/loss_scale.py`` then uses both cores of that box.
 On such a pool ``score`` and ``analyze`` solve one layout a call (their
-small layouts still share a call as one packed problem), and
-:func:`check_batched_linalg` turns a hang into an error where the library
-would batch anyway (training; and a last check before every batched solve).
+planner's batch sizes, ``batch.batch_sizes``; small layouts still share a
+call as one packed problem), and :func:`check_batched_linalg` turns a hang
+into an error where the library batches anyway (training,
+``admm.solve_batch``).
 """
 from __future__ import annotations
 
