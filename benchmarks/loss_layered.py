@@ -56,6 +56,7 @@ from stablelego_jax.formats.reader import load_layout  # noqa: E402
 from stablelego_jax.generate.procedural import random_family_layout  # noqa: E402
 from stablelego_jax.loss import soft_report, stability_loss  # noqa: E402
 from stablelego_jax.soft import soft_problem  # noqa: E402
+from stablelego_jax.solvers.compiled import map_budget, mappings  # noqa: E402
 from stablelego_jax.solvers.problem import layer_bucket, layer_soft, pad_soft, soft_layer_plan  # noqa: E402
 
 SHAPE = lg.SHAPE
@@ -90,7 +91,7 @@ def verdict_case(name, lay):
     w = np.zeros(SHAPE[0])
     w[: lay.n] = 1.0
     z = np.zeros(SHAPE[0])
-    out = {"name": name, "n_bricks": lay.n, "maps": _maps()}
+    out = {"name": name, "n_bricks": lay.n, "maps": mappings()}
     for tau in (OPTS.temperature, 1e-5):
         rd, rl = REPORT(w, z, dense, tau), REPORT(w, z, layered, tau)
         ld, ll = float(np.sum(rd.brick_loss)), float(np.sum(rl.brick_loss))
@@ -108,25 +109,16 @@ def verdict_case(name, lay):
     return out
 
 
-def _maps() -> int:
-    try:
-        with open("/proc/self/maps") as f:
-            return sum(1 for _ in f)
-    except OSError:
-        return -1
-
-
-#: memory mappings (``/proc/self/maps``) past which every compiled executable is let go
-MAPS_BOUND = 30000
-
-
 def bound_maps() -> None:
-    """Let go of JAX's compiled executables once the process holds more than
-    :data:`MAPS_BOUND` memory mappings: each executable keeps about 1000,
-    and a full run with the tight differences passed this machine's limit
-    (``vm.max_map_count`` 65530: LLVM "Cannot allocate memory", no summary;
-    session 46). Executables needed again are compiled again."""
-    if _maps() > MAPS_BOUND:
+    """Let go of JAX's compiled executables once the process holds more
+    memory mappings than the library's own executable cache allows
+    (:func:`~stablelego_jax.solvers.compiled.map_budget`: half of
+    ``vm.max_map_count``): each compiled loss keeps about 1000, and a full
+    run with the tight differences passed the limit (LLVM "Cannot allocate
+    memory", no summary; session 46). Executables needed again are
+    compiled again."""
+    budget = map_budget()
+    if budget is not None and (mappings() or 0) > budget:
         jax.clear_caches()
 
 
@@ -145,7 +137,7 @@ def fd_case(name, lay, rng):
     ld, ll = float(LOSS(w, loads, dense)), float(LOSS(w, loads, layered))
     DUMP[f"{name}|fd_loss"] = np.array([ld, ll])
     DUMP[f"{name}|fd_grad"] = np.stack([np.concatenate(gd), np.concatenate(gl_)])
-    out = {"name": name, "n_bricks": n, "maps": _maps(), "loss_rel_diff": abs(ll - ld) / max(abs(ld), 1e-300),
+    out = {"name": name, "n_bricks": n, "maps": mappings(), "loss_rel_diff": abs(ll - ld) / max(abs(ld), 1e-300),
            "grad_max_abs_diff": float(max(np.abs(a - b).max() for a, b in zip(gd, gl_)))}
     worst = {"fd_max_rel_err": 0.0, "fd_tight_max_rel_err": 0.0}
     for what, g, pool in (("weights", gl_[0], soft_idx), ("loads", gl_[1], np.arange(n))):
