@@ -402,20 +402,20 @@ def test_plan_soft_fits_the_padding_when_the_solves_pay_for_a_compile():
     from stablelego_jax.loss import stability_loss
     from stablelego_jax.solvers.problem import layer_soft, plan_soft, soft_bucket, soft_layer_plan
 
-    # a box of 6 layers of 49 unit bricks, a 1 x 8 brick on top sticking 6 studs out, 0.5 kg hung on it
-    box = cuboid(7, 7, 6)
-    p = compile_soft(brick_layout(np.concatenate([box.pos, [[5, 0, 6]]]),
+    # a box of 6 layers of 16 unit bricks, a 1 x 8 brick on top sticking 6 studs out, 0.5 kg hung on it
+    box = cuboid(4, 4, 6)
+    p = compile_soft(brick_layout(np.concatenate([box.pos, [[2, 0, 6]]]),
                                   np.concatenate([box.size, [[8, 1]]]))).problem
     L, B = soft_layer_plan(p)
     n, m = p.mass.shape[0], p.col_kind.shape[0]
     ladder, fitted = plan_soft(p), plan_soft(p, calls=10 ** 6)
-    assert (L, B) == (7, 49) and ladder.layers.shape == layer_bucket(L, B) == (8, 56)
-    shared = soft_bucket(n, m, p.group.shape[1], (8, 56), len(layer_soft(p).chunk))
+    assert (L, B) == (7, 16) and ladder.layers.shape == layer_bucket(L, B) == (8, 16)
+    shared = soft_bucket(n, m, p.group.shape[1], (8, 16), len(layer_soft(p).chunk))
     assert (ladder.mass.shape[0], ladder.col_kind.shape[0], ladder.group.shape[1], len(ladder.chunk)) == shared
-    assert fitted.layers.shape == (7, 56)
+    assert fitted.layers.shape == (7, 16)
     assert fitted.mass.shape[0] == -(-n // 8) * 8 < ladder.mass.shape[0]
     assert fitted.col_kind.shape[0] == -(-m // 64) * 64 < ladder.col_kind.shape[0]
-    assert plan_soft(p, calls=2).layers.shape == (8, 56)  # a few solves do not pay for a compile
+    assert plan_soft(p, calls=2).layers.shape == (8, 16)  # a few solves do not pay for a compile
     losses = []
     for q in (ladder, fitted, pad_soft(layer_soft(p))):
         w, loads = np.zeros(q.mass.shape[0]), np.zeros(q.mass.shape[0])
