@@ -29,33 +29,17 @@ def test_restored_after_an_error():
 
 import os  # noqa: E402
 import subprocess  # noqa: E402
-import sys  # noqa: E402
 
+from lapack_calls import command  # noqa: E402
 from stablelego_jax.blas import LAPACK_POOL_DEADLOCK, lapack_pool_deadlock, one_xla_pool_thread  # noqa: E402
 
 ROOT = os.path.join(os.path.dirname(__file__), "..")
 
-#: four independent batched triangular solves of 8 x 160 x 160 (more than
-#: 200000 entries each, so jaxlib 0.10 splits each batch over XLA's pool) in
-#: one jitted function, 100 times. On jaxlib 0.10.2 with a 2-thread pool this
-#: hung on its first calls in every try on the 2-core box.
-REPRODUCER = """
-import sys
-if sys.argv[1] == "package":
-    import stablelego_jax  # noqa: F401  (the guard runs on import)
-import jax, jax.numpy as jnp
-from jax.scipy.linalg import solve_triangular
-jax.config.update("jax_enable_x64", True)
-B, n = 8, 160
-keys = jax.random.split(jax.random.key(0), 4)
-A = [jax.random.normal(k, (B, n, n)) for k in keys]
-L = [jnp.linalg.cholesky(a @ a.transpose(0, 2, 1) + n * jnp.eye(n)) for a in A]
-f = jax.jit(lambda L, x: sum(solve_triangular(Li, x * (i + 1), lower=True).sum() for i, Li in enumerate(L)))
-x = jnp.ones((B, n, n))
-for i in range(100):
-    float(f(L, x + i))
-print("done")
-"""
+#: the reproducer: four independent batched triangular solves of 8 x 160 x
+#: 160 (more than 200000 entries each, so jaxlib 0.10 splits each batch over
+#: XLA's pool) in one jitted function, 100 times. On jaxlib 0.10.2 with a
+#: 2-thread pool this hung on its first calls in every try on the 2-core box.
+REPRODUCER = dict(batch=8, n=160, calls=100, factorise=False)
 
 
 def test_the_pool_guard_sets_one_thread_on_affected_jaxlib_only():
@@ -92,7 +76,7 @@ def test_batched_lapack_calls_side_by_side_finish_after_importing_the_package():
     env = {k: v for k, v in os.environ.items() if k not in ("PJRT_NPROC", "NPROC")}
     env["PYTHONPATH"] = ROOT + os.pathsep + env.get("PYTHONPATH", "")
     try:
-        out = subprocess.run([sys.executable, "-c", REPRODUCER, "package"], env=env, cwd=ROOT,
+        out = subprocess.run(command(**REPRODUCER), env=env, cwd=ROOT,
                              capture_output=True, text=True, timeout=240)
     except subprocess.TimeoutExpired:
         pytest.fail("batched LAPACK calls deadlocked XLA's CPU pool (no answer in 240 s)")
@@ -126,22 +110,7 @@ def test_batched_linalg_on_a_larger_pool_is_an_error_on_affected_jaxlib_only():
 #: 720 x 720 in one program, 40 times: the kind of calls one soft problem's
 #: loss makes. On jaxlib 0.10.2 with a 2-thread pool this finished in every
 #: try; the same with a batch of two matrices a call hung (session 46).
-UNBATCHED = """
-import jax, jax.numpy as jnp
-from jax.scipy.linalg import solve_triangular
-import stablelego_jax  # noqa: F401
-jax.config.update("jax_enable_x64", True)
-n = 720
-A = [jax.random.normal(k, (n, n)) for k in jax.random.split(jax.random.key(0), 4)]
-L = [jnp.linalg.cholesky(a @ a.T + n * jnp.eye(n)) for a in A]
-f = jax.jit(lambda A, L, x: sum(solve_triangular(Li, x * (i + 1), lower=True).sum()
-                                + jnp.linalg.cholesky(Ai @ Ai.T + n * jnp.eye(n)).sum()
-                                for i, (Ai, Li) in enumerate(zip(A, L))))
-x = jnp.ones((n, n))
-for i in range(40):
-    float(f(A, L, x + i))
-print("done")
-"""
+UNBATCHED = dict(batch=0, n=720, calls=40)
 
 
 def test_unbatched_lapack_calls_side_by_side_finish_on_a_two_thread_pool():
@@ -150,7 +119,7 @@ def test_unbatched_lapack_calls_side_by_side_finish_on_a_two_thread_pool():
     env = dict(os.environ, PJRT_NPROC="2")
     env["PYTHONPATH"] = ROOT + os.pathsep + env.get("PYTHONPATH", "")
     try:
-        out = subprocess.run([sys.executable, "-c", UNBATCHED], env=env, cwd=ROOT,
+        out = subprocess.run(command(**UNBATCHED), env=env, cwd=ROOT,
                              capture_output=True, text=True, timeout=240)
     except subprocess.TimeoutExpired:
         pytest.fail("unbatched LAPACK calls deadlocked a 2-thread pool (no answer in 240 s)")
