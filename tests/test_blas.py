@@ -74,12 +74,17 @@ def test_batched_lapack_calls_side_by_side_finish_after_importing_the_package():
     """The reproducer finishes when the package was imported first (its
     guard sizes the pool); a hang here is the deadlock of stablelego_jax.blas."""
     env = {k: v for k, v in os.environ.items() if k not in ("PJRT_NPROC", "NPROC")}
-    env["PYTHONPATH"] = ROOT + os.pathsep + env.get("PYTHONPATH", "")
+    _finishes(REPRODUCER, env, "batched LAPACK calls deadlocked XLA's CPU pool")
+
+
+def _finishes(case: dict, env: dict, hang: str) -> None:
+    """Run ``lapack_calls``' program for ``case`` with ``env`` (the package on
+    its path); fail with ``hang`` if it has not finished in 240 s."""
+    env = dict(env, PYTHONPATH=ROOT + os.pathsep + env.get("PYTHONPATH", ""))
     try:
-        out = subprocess.run(command(**REPRODUCER), env=env, cwd=ROOT,
-                             capture_output=True, text=True, timeout=240)
+        out = subprocess.run(command(**case), env=env, cwd=ROOT, capture_output=True, text=True, timeout=240)
     except subprocess.TimeoutExpired:
-        pytest.fail("batched LAPACK calls deadlocked XLA's CPU pool (no answer in 240 s)")
+        pytest.fail(f"{hang} (no answer in 240 s)")
     assert out.returncode == 0, out.stderr[-2000:]
     assert out.stdout.strip() == "done"
 
@@ -116,12 +121,4 @@ UNBATCHED = dict(batch=0, n=720, calls=40)
 def test_unbatched_lapack_calls_side_by_side_finish_on_a_two_thread_pool():
     """What lets a process that solves one problem at a time use every core:
     kernels of one matrix do not split over the pool (stablelego_jax.blas)."""
-    env = dict(os.environ, PJRT_NPROC="2")
-    env["PYTHONPATH"] = ROOT + os.pathsep + env.get("PYTHONPATH", "")
-    try:
-        out = subprocess.run(command(**UNBATCHED), env=env, cwd=ROOT,
-                             capture_output=True, text=True, timeout=240)
-    except subprocess.TimeoutExpired:
-        pytest.fail("unbatched LAPACK calls deadlocked a 2-thread pool (no answer in 240 s)")
-    assert out.returncode == 0, out.stderr[-2000:]
-    assert out.stdout.strip() == "done"
+    _finishes(UNBATCHED, dict(os.environ, PJRT_NPROC="2"), "unbatched LAPACK calls deadlocked a 2-thread pool")
