@@ -1,5 +1,6 @@
 """float64 in a scope, and compiled solvers cached in and across processes
 (stablelego_jax.runtime, stablelego_jax.solvers.compiled)."""
+import glob
 import json
 import os
 import subprocess
@@ -125,6 +126,37 @@ print(json.dumps({{"stable": a.stable, "loaded": STATS.loaded, "compiles": STATS
     assert first["loaded"] == 0 and first["misses"] >= 1
     assert second["loaded"] == 1 and second["hits"] >= 1 and second["misses"] == 0
     assert os.listdir(tmp_path / "cache" / "exported") and os.listdir(tmp_path / "cache" / "xla")
+
+
+def test_the_suites_xla_level_gives_the_shipped_answers():
+    """The suite compiles at XLA's optimisation level 0 (tests/conftest.py);
+    the shipped library at XLA's defaults. On the paper's examples both give
+    the same labels, weakest bricks and iteration counts, and scores within
+    1e-9 (7e-12 measured)."""
+    from conftest import shipping_env
+
+    from stablelego_jax.analysis import analyze
+
+    files = sorted(glob.glob(os.path.join(ROOT, "examples", "stablelego", "*.json")))
+    code = f"""
+import json
+from stablelego_jax.analysis import analyze
+out = {{}}
+for f in {files!r}:
+    a = analyze(f, solver="jax")
+    out[f] = [a.stable, a.weakest, a.converged, a.iters, a.scores]
+print(json.dumps(out))
+"""
+    r = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=600,
+                       env=dict(shipping_env(), PYTHONPATH=ROOT))
+    assert r.returncode == 0, r.stderr[-3000:]
+    shipped = json.loads(r.stdout.strip().splitlines()[-1])
+    assert len(files) == 8
+    for f in files:
+        a = analyze(f, solver="jax")
+        stable, weakest, converged, iters, scores = shipped[f]
+        assert (a.stable, a.weakest, a.converged, a.iters) == (stable, weakest, converged, iters), f
+        assert max(abs(a.scores[k] - scores[k]) for k in scores) < 1e-9, f
 
 
 def test_cache_dir_settings(monkeypatch, tmp_path):
