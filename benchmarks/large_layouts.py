@@ -18,6 +18,8 @@ runs in its own process (its peak resident memory from ``wait4``), with
   ``fit_plan(solve_plan)``; ``--plan ladder``: the batch's bucket,
   ``--plan layers``: layer by layer, to compare), the solver
   compiled (``compile_s``, apart), one solve (``solve_s``);
+* ``jax-gram``: the same with every layer's step by its Gram product
+  (``IPMOptions.below`` off: the factorisation before session 48);
 * ``exact``: ``analyze_layout(solver="exact")`` as ``stablelego analyze
   --solver exact`` runs it (HiGHS, its canonical stage included);
 * ``vertex``: HiGHS' optimal vertex alone (no canonical stage: the plain
@@ -89,7 +91,8 @@ def child(case: str, ldr: str | None, solver: str, plan: str) -> dict:
                "layers": lambda: ("layered",) + layer_bucket(*layer_plan(model))}[plan]()
         fm, prob = plan_problem(model, key, m_pad, p_pad)
         arrays = tuple(x for x in prob if x is not None)
-        opts = ipm.IPMOptions()
+        # as analyze sets it; jax-gram: every layer's step by its Gram product (before session 48)
+        opts = ipm.options_for(ipm.IPMOptions(), prob) if solver == "jax" else ipm.IPMOptions()
         t1 = time.perf_counter()
         exe = compiled("ipm", solver_fn(model.params, opts), (model.params, opts), arrays, export=False)
         t2 = time.perf_counter()
@@ -98,7 +101,7 @@ def child(case: str, ldr: str | None, solver: str, plan: str) -> dict:
         t3 = time.perf_counter()
         a = make_analysis(lay, fm, np.asarray(sol[0]), "jax", bool(sol[2]), 0.0)
         row.update(wall_s=t3 - t0, compile_s=t2 - t1, solve_s=t3 - t2, plan=list(key),
-                   iters=int(sol[1]), converged=bool(sol[2]))
+                   iters=int(sol[1]), converged=bool(sol[2]), below=opts.below)
     scores = np.array([a.scores[k] for k in lay.keys])
     row.update(stable=bool(a.stable), failing=int((scores > 1).sum()), highest=float(scores.max()),
                weakest=a.weakest, scores=[round(float(s), 9) for s in scores])
@@ -141,7 +144,7 @@ def main(argv=None) -> int:
     ap.add_argument("--plan", choices=("auto", "ladder", "layers"), default="auto",
                     help="JAX plan: as analyze picks it (auto: solve_plan fitted to the layout), the "
                          "ladder's bucket (ladder: solve_plan) or layer by layer on the ladder (layers)")
-    ap.add_argument("--solvers", nargs="*", default=["jax", "exact"], choices=("jax", "exact", "vertex"))
+    ap.add_argument("--solvers", nargs="*", default=["jax", "exact"], choices=("jax", "jax-gram", "exact", "vertex"))
     ap.add_argument("--timeout", type=float, default=1200.0, help="seconds per solve")
     ap.add_argument("--json", action="store_true", help="print one JSON object per row")
     ap.add_argument("--child", nargs=3, help=argparse.SUPPRESS)

@@ -139,8 +139,7 @@ def solve_jax(model: ForceModel, opts=None):
     from .solvers.compiled import compiled
     from .solvers.problem import Solution
 
-    opts = opts or ipm.IPMOptions()
-    name, padded, arrays = _single_problem(model, opts)
+    name, padded, arrays, opts = _single_problem(model, opts or ipm.IPMOptions())
     exe = compiled(name, solver_fn(model.params, opts), (model.params, opts), arrays)
     return Solution(*jax.device_get(exe(*arrays))), padded
 
@@ -154,14 +153,15 @@ def _single_plan(model: ForceModel) -> tuple:
 
 
 def _single_problem(model: ForceModel, opts, plan: tuple | None = None):
-    """(executable name, padded model, problem arrays) of :func:`solve_jax`
+    """(executable name, padded model, problem arrays, options for it:
+    :func:`~stablelego_jax.solvers.ipm.options_for`) of :func:`solve_jax`
     (``plan``: :func:`_single_plan`'s, if computed already)."""
-    from .solvers import admm
+    from .solvers import admm, ipm
     from .solvers.problem import plan_problem
 
     name = "admm" if isinstance(opts, admm.SolverOptions) else "ipm"
     padded, prob = plan_problem(model, *(plan or _single_plan(model)))
-    return name, padded, tuple(a for a in prob if a is not None)
+    return name, padded, tuple(a for a in prob if a is not None), ipm.options_for(opts, prob)
 
 
 #: Seconds the JAX solver's first answer in a process costs beyond the
@@ -191,8 +191,7 @@ def auto_solver(model: ForceModel) -> str:
     jax_s = JAX_START_S + plan_seconds(*plan[:2]) + LOAD_S
     if exact_s < jax_s:  # no need to pad the problem for the check below
         return "exact"
-    opts = ipm.IPMOptions()
-    name, _, arrays = _single_problem(model, opts, plan)
+    name, _, arrays, opts = _single_problem(model, ipm.IPMOptions(), plan)
     specs = [jax.ShapeDtypeStruct(np.shape(a), np.result_type(a)) for a in arrays]
     if not available(name, (model.params, opts), specs):
         jax_s += SINGLE_COMPILE_S - LOAD_S

@@ -4,7 +4,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from stablelego_jax.solvers.blocks import PIECE, block_cholesky, block_solve, cut_cholesky, lower_gram, lower_solve
+from stablelego_jax.solvers.blocks import (PIECE, block_cholesky, block_solve, cut_cholesky, lower_gram, lower_inverse,
+                                          lower_solve)
 
 pytestmark = pytest.mark.usefixtures("x64")
 
@@ -35,6 +36,53 @@ def test_block_cholesky_solves_the_block_tridiagonal_system(L, k):
     r = rng.normal(size=N)
     x = block_solve(C, G, jnp.asarray(r).reshape(L, k)).reshape(-1)
     np.testing.assert_allclose(np.asarray(x), np.linalg.solve(M, r), rtol=1e-10, atol=1e-12)
+
+
+@pytest.mark.parametrize("L,B,K", [(3, 4, 1), (4, 9, 3), (2, 50, 2)])
+def test_block_cholesky_with_sparse_e_gives_the_same_factors(L, B, K):
+    """``below=``: E[l] holds only each brick's blocks at its neighbours in
+    the level below (at most K, some none); the factor, G and the solve are
+    those of the dense step, to rounding, with pivot rows scaled over
+    1e-3..1e3 (B = 50: 300-row blocks, the inverse split in blocks)."""
+    rng = np.random.default_rng(2)
+    k = 6 * B
+    below = np.full((L, B, K), B)
+    for l in range(L - 1):
+        for i in range(B):
+            q = rng.integers(1, K + 1)
+            below[l, i, :q] = rng.choice(B, q, replace=False)
+    mask = np.zeros((L * k, L * k), bool)
+    for l in range(L):
+        mask[l * k:(l + 1) * k, l * k:(l + 1) * k] = True
+    for l in range(L - 1):
+        for i in range(B):
+            for j in below[l, i]:
+                if j < B:
+                    r, c = (l + 1) * k + 6 * i, l * k + 6 * j
+                    mask[r:r + 6, c:c + 6] = mask[c:c + 6, r:r + 6] = True
+    X = rng.normal(size=(L * k, L * k))
+    S = 10.0 ** rng.uniform(-3, 3, size=L * k)
+    M = np.where(mask, X @ X.T, 0.0)
+    M = S[:, None] * (M + np.diag(np.abs(M).sum(1))) * S[None, :]  # SPD (diagonally dominant), rows scaled
+    D, E = _blocks(M, L, k)
+    C0, G0 = block_cholesky(jnp.asarray(D), jnp.asarray(E))
+    C1, G1 = block_cholesky(jnp.asarray(D), jnp.asarray(E), below=jnp.asarray(below))
+    for a, b in ((C0, C1), (G0, G1)):
+        a, b = np.asarray(a), np.asarray(b)
+        np.testing.assert_allclose(b, a, rtol=0, atol=1e-9 * np.abs(a).max())
+    r = rng.normal(size=L * k)
+    x = block_solve(C1, G1, jnp.asarray(r).reshape(L, k)).reshape(-1)
+    want = np.linalg.solve(M, r)
+    np.testing.assert_allclose(np.asarray(x), want, rtol=1e-7, atol=1e-9 * np.abs(want).max())
+
+
+@pytest.mark.parametrize("k", [5, PIECE, 2 * PIECE + 1, 300])
+def test_lower_inverse_is_the_inverse(k):
+    X = np.random.default_rng(3).normal(size=(k, k))
+    C = np.linalg.cholesky(X @ X.T + k * np.eye(k))
+    got = np.asarray(lower_inverse(jnp.asarray(C)))
+    assert np.all(np.triu(got, 1) == 0.0)
+    np.testing.assert_allclose(got @ C, np.eye(k), atol=1e-12)
 
 
 @pytest.mark.parametrize("k", [100, 301, 390, 520])

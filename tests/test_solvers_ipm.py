@@ -295,3 +295,36 @@ def test_refinement_steps_do_not_change_the_answer():
     assert a.converged and b.converged and abs(a.iters - b.iters) <= 1
     np.testing.assert_allclose([b.scores[k] for k in lay.keys], [a.scores[k] for k in lay.keys], atol=1e-8)
     np.testing.assert_allclose([a.scores[k] for k in lay.keys], [ex.scores[k] for k in lay.keys], atol=1e-3)
+
+
+def test_layers_factored_with_sparse_couplings_give_the_same_answer():
+    """IPMOptions.below (ipm.options_for): a layered problem of 64 slots a
+    layer whose supports table holds every coupling between levels (an
+    8 x 8 x 4 block of unit bricks, each on the one below) forms each
+    layer's G from its pivot's inverse and the supports' blocks: the same
+    iterations, the same objective and forces as the dense step, and
+    scores as the exact solver's. A problem that cannot is refused: no
+    supports table, slots below BELOW_MIN_SLOTS, or a coupling between
+    levels missing from the table."""
+    from stablelego_jax.solvers.problem import MIN_COLUMNS, MIN_SLOTS
+
+    lay = cuboid(8, 8, 4)
+    model = compile_layout(lay)
+    m_pad, p_pad = rung(model.m, MIN_COLUMNS), rung(model.group.shape[1], MIN_SLOTS)
+    fm, prob = plan_problem(model, ("layered", 4, 64, 4), m_pad, p_pad)
+    opts = ipm.options_for(ipm.IPMOptions(), prob)
+    assert opts.below and ipm.below_ok(prob)
+    sols = [jax.jit(lambda p, o=o: ipm.solve(p, opts=o))(prob) for o in (ipm.IPMOptions(), opts)]
+    (f0, it0, ok0), (f1, it1, ok1) = [(np.asarray(s.f), int(s.iters), bool(s.converged)) for s in sols]
+    assert ok0 and ok1 and it0 == it1
+    assert np.abs(f1 - f0).max() <= 1e-9 * np.abs(f0).max()
+    a = make_analysis(lay, fm, f1, "jax", ok1, 0.0)
+    ex = analyze_layout(lay, solver="exact")
+    assert a.stable == ex.stable and max(abs(a.scores[k] - ex.scores[k]) for k in lay.keys) < 1e-6
+    # refused: no supports table; fewer slots; a coupling between levels not in the table
+    assert not ipm.below_ok(prob._replace(supports=None, col_slot=None))
+    _, small = plan_problem(compile_layout(cuboid(4, 4, 4)), ("layered", 4, 16, 4), m_pad, p_pad)
+    assert not ipm.below_ok(small)
+    sup = np.array(prob.supports)
+    sup[64 + 5] = sup.shape[0]  # brick 5 of level 1 loses its support: its columns to level 0 now cross outside
+    assert not ipm.below_ok(prob._replace(supports=sup))

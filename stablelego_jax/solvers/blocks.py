@@ -20,7 +20,8 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-__all__ = ["block_cholesky", "block_solve", "cut_cholesky", "layer_cuts", "layer_picks", "lower_gram", "lower_solve"]
+__all__ = ["block_cholesky", "block_solve", "cut_cholesky", "layer_cuts", "layer_picks", "lower_gram", "lower_solve",
+           "lower_inverse", "below_blocks", "below_product"]
 
 #: rows of the diagonal pieces :func:`lower_solve` inverts (every block size
 #: ``6 B``, B a multiple of 8, is a multiple of it)
@@ -65,6 +66,42 @@ def lower_gram(G):
     return jnp.concatenate([jnp.pad(s, ((0, 0), (0, k - s.shape[1]))) for s in strips])
 
 
+def lower_inverse(C, leaf: int = 2 * PIECE):
+    """``C^-1`` of a lower triangular C ((k, k)), lower triangular, by
+    2 x 2 blocks split at a multiple of :data:`PIECE` rows:
+    ``[[A, 0], [B, D]]^-1 = [[A^-1, 0], [-D^-1 B A^-1, D^-1]]``, down to
+    blocks of at most ``leaf`` rows (a triangular solve with the identity).
+    About ``2 k^3 / 3`` flops in products; 5.4-6.5 ms at k = 624 on one
+    core, where LAPACK's solve against the identity took 5.7-7.1 ms and
+    :func:`lower_solve` 8.7-9.6 (BENCHMARKS.md, issue 17, session 48)."""
+    n = C.shape[0]
+    if n <= leaf:
+        return jax.scipy.linalg.solve_triangular(C, jnp.eye(n, dtype=C.dtype), lower=True)
+    h = -(-(n // 2) // PIECE) * PIECE
+    Ai, Di = lower_inverse(C[:h, :h], leaf), lower_inverse(C[h:, h:], leaf)
+    return jnp.concatenate([jnp.concatenate([Ai, jnp.zeros((h, n - h), C.dtype)], 1),
+                            jnp.concatenate([-(Di @ (C[h:, :h] @ Ai)), Di], 1)])
+
+
+def below_blocks(El, below):
+    """(B, K, 6, 6) the blocks of ``El`` ((6 B, 6 B): block (l + 1, l),
+    rows the bricks of level l + 1) at each brick's neighbours in level l,
+    ``below`` ((B, K) slots of level l, ``B`` = none: a zero block)."""
+    B = below.shape[0]
+    E4 = El.reshape(B, 6, B, 6).transpose(0, 2, 1, 3)
+    return E4.at[jnp.arange(B)[:, None], below].get(mode="fill", fill_value=0.0)
+
+
+def below_product(X, Ec, below):
+    """``X E'`` ((k, 6 B)) for X (k, 6 B) and E given by its blocks ``Ec``
+    ((B, K, 6, 6), :func:`below_blocks`) at ``below`` ((B, K)): column
+    ``6 j + d`` sums X's 6 columns of each of brick j's neighbours times
+    their block's row d. ``O(36 K k B)`` flops, not E's dense ``2 (6 B)^3``."""
+    k, B = X.shape[0], below.shape[0]
+    Xc = X.reshape(k, B, 6).at[:, below].get(mode="fill", fill_value=0.0)  # (k, B, K, 6)
+    return jnp.einsum("rjqc,jqdc->rjd", Xc, Ec).reshape(k, 6 * B)
+
+
 def lower_solve(C, R):
     """``C^-1 R`` for a lower triangular C ((k, k)) and R ((k, r)), by
     pieces of :data:`PIECE` rows, top down: a piece's rows of R less C's
@@ -82,13 +119,22 @@ def lower_solve(C, R):
     return jnp.concatenate(X)
 
 
-def block_cholesky(D, E, live=None, cuts=()):
+def block_cholesky(D, E, live=None, cuts=(), below=None):
     """Factor a block-tridiagonal SPD matrix (``F = E^T``).
     Returns (C, G): C[l] lower Cholesky factor of the l-th pivot block,
     G[l] = C[l]^-1 E[l]'. One layer (``L = 1``, a dense matrix): one
     Cholesky factor and G = 0, with no triangular solve for it. Each pivot
     block's Cholesky reads its lower triangle only (:func:`lower_gram`
     forms no more of the Schur update).
+
+    below ((L, B, K) int, ``k = 6 B``, or None): the only nonzero 6 x 6
+    blocks of E[l] are each brick of level l + 1's at ``below[l]``, its
+    neighbours in level l (``B``: none). Then ``G = C^-1 E'`` is formed
+    from the pivot block's inverse (:func:`lower_inverse`) and E's blocks
+    (:func:`below_product`): about ``2 k^3 / 3`` flops instead of
+    :func:`lower_solve`'s ``k^3`` against a dense E. The unit cube's
+    solve took 0.85-0.96x the time (BENCHMARKS.md, issue 17, session 48).
+    The same numbers to rounding. Not with ``live``.
 
     live ((L,) int, traced) and cuts (static sizes, ascending, the last
     ``k``): the rows of layer l from ``live[l]`` on are decoupled and
@@ -108,6 +154,22 @@ def block_cholesky(D, E, live=None, cuts=()):
     def layer(Gprev, Dl, El):
         C = jax.lax.linalg.cholesky(Dl - lower_gram(Gprev), symmetrize_input=False)
         return C, lower_solve(C, El.T)
+
+    if below is not None:
+        if live is not None:
+            raise ValueError("block_cholesky: below= does not cut layers (live=)")
+
+        # E's blocks with the inverse, not the inverse's Gram Ci' Ci sandwiched between
+        # them: that product lost the cancellation inside G, and the unit cube's interior
+        # point diverged (factors 1e-7 off by the third layer; BENCHMARKS.md, session 48)
+        def sparse_body(Gprev, inp):
+            Dl, El, bl = inp
+            C = jax.lax.linalg.cholesky(Dl - lower_gram(Gprev), symmetrize_input=False)
+            G = below_product(lower_inverse(C), below_blocks(El, bl), bl)
+            return G, (C, G)
+
+        _, (C, G) = jax.lax.scan(sparse_body, jnp.zeros_like(D[0]), (D, E, jnp.asarray(below)))
+        return C, G
 
     if live is None or len(cuts) < 2:
         def body(Gprev, inp):

@@ -49,7 +49,7 @@ from .newton import reduced_matrix
 from .problem import Problem, Solution, ladder, make_solution, operators
 from .interior import boundary_step, centring, iterate
 
-__all__ = ["IPMOptions", "solve"]
+__all__ = ["IPMOptions", "solve", "below_ok", "options_for", "BELOW_MIN_SLOTS"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -85,7 +85,11 @@ class IPMOptions:
     (:func:`~stablelego_jax.solvers.blocks.cut_cholesky`); the numbers are
     those of the full factor; with ``Problem.supports``, its bricks'
     rank-one terms are assembled from their supports (a batch, not cut,
-    forms them as one product).
+    forms them as one product). below: a layered problem whose supports
+    table holds every block coupling two levels (:func:`below_ok`; set by
+    :func:`options_for`) factors each layer through its pivot block's
+    inverse (:func:`~stablelego_jax.solvers.blocks.block_cholesky`'s
+    ``below``): the same numbers to rounding, about half the flops a layer.
     """
 
     max_iter: int = 80
@@ -102,11 +106,52 @@ class IPMOptions:
     init: float = 1e-2
     dtype: str = "float64"
     cut: bool = False
+    below: bool = False
 
 
 #: Fewest bricks :attr:`IPMOptions.cut` factors: below, a smaller factor gained less than its
 #: branch cost (dense 40 on the small set, session 40).
 CUT_MIN = 40
+
+#: Fewest slots a layer for :attr:`IPMOptions.below`: a layer's step through its pivot's
+#: inverse took 0.62-0.76x the time at 104 slots, 0.69-0.85x at 56, about the same or more
+#: at 16-32 (one core; BENCHMARKS.md, issue 17, session 48).
+BELOW_MIN_SLOTS = 48
+
+
+def below_ok(prob: Problem) -> bool:
+    """Whether a (host, numpy) problem can be factored with
+    :attr:`IPMOptions.below`: numbered by layers (``L > 1``) of at least
+    :data:`BELOW_MIN_SLOTS` slots, with a supports table whose supports
+    are all in the level below their brick's (a layered problem's, not
+    slabs'), and no column between two levels other than a brick's with
+    one of its supports, so that the table holds every block coupling two
+    levels."""
+    import numpy as np
+
+    if prob.layers is None or prob.supports is None or len(prob.layers) < 2:
+        return False
+    n, L = prob.brick_mask.shape[0], len(prob.layers)
+    B = n // L
+    if B < BELOW_MIN_SLOTS:
+        return False
+    sup = np.asarray(prob.supports)
+    level = np.arange(n) // B
+    real = sup < n
+    if (level[np.minimum(sup, n - 1)][real] != np.broadcast_to(level[:, None] - 1, sup.shape)[real]).any():
+        return False
+    cb = np.minimum(np.asarray(prob.col_brick), n)
+    cb = cb[np.asarray(prob.col_mask) & (cb < n).all(1)]
+    across = level[cb[:, 0]] != level[cb[:, 1]]
+    upper = np.where(level[cb[:, 0]] > level[cb[:, 1]], cb[:, 0], cb[:, 1])[across]
+    lower = np.where(level[cb[:, 0]] > level[cb[:, 1]], cb[:, 1], cb[:, 0])[across]
+    return bool((sup[upper] == lower[:, None]).any(1).all())
+
+
+def options_for(opts: "IPMOptions", prob: Problem) -> "IPMOptions":
+    """``opts`` with :attr:`IPMOptions.below` set where :func:`below_ok`
+    accepts a single (unbatched, host) problem."""
+    return dataclasses.replace(opts, below=below_ok(prob)) if isinstance(opts, IPMOptions) else opts
 
 
 # ----------------------------------------------------------------- solver
@@ -162,6 +207,13 @@ def _system(prob: Problem, params: Params, opts: IPMOptions) -> dict:
     if cut:
         live = 6 * jnp.max(jnp.where(prob.brick_mask, jnp.arange(1, n + 1), 0))
         cuts = tuple(6 * r for r in ladder(n) if r >= CUT_MIN)  # ends with n
+
+    below = None
+    if opts.below and L > 1 and supports is not None:  # (L, B, K): each brick's supports as slots of the level below
+        B = n // L
+        sup = supports.reshape(L, B, -1)[1:] - (B * jnp.arange(L - 1))[:, None, None]
+        sup = jnp.where((sup >= 0) & (sup < B), sup, B)
+        below = jnp.concatenate([sup, jnp.full((1,) + sup.shape[1:], B, sup.dtype)])
 
     # the blocks of M for any weights (static scatter plan; :mod:`.newton`)
     assemble = reduced_matrix(prob.col_brick, coef, (kind == NORMAL) & cmask, n, L, prob.chunks,
@@ -221,7 +273,7 @@ def _system(prob: Problem, params: Params, opts: IPMOptions) -> dict:
             Dm, Em = assemble(e, q, 1.0 / gam, dr)
             dg = Dm[:, i, i]
         Dm = Dm.at[:, i, i].add(opts.reg_rel * dg + opts.reg_abs * (1.0 + dg.max()))
-        C, Gf = cut_cholesky(Dm, P, live, cuts) if cut else block_cholesky(Dm, Em)
+        C, Gf = cut_cholesky(Dm, P, live, cuts) if cut else block_cholesky(Dm, Em, below=below)
         return (Wt, hx, a, gam, C, Gf)
 
     def hinv(f, b):
