@@ -18,6 +18,11 @@ Two ways to form one layer's step, timed after compile (jitted, best of ``--repe
 
 Random SPD ``D`` and ``E`` with ``K`` supports a brick; the two steps' next Schur updates are
 compared (relative difference). Prints one line per case (and ``--json``: the rows).
+
+On these well-conditioned blocks both agree to rounding; in the interior point the ``E Mi E'``
+update is not usable: forming ``Li' Li`` first loses the cancellation inside ``G = Li E'``, and
+the unit cube's solve diverged (BENCHMARKS.md, issue 17, session 48). The library keeps the
+Gram step's update and forms only ``G`` from the inverse (``block_cholesky(below=)``).
 """
 from __future__ import annotations
 

@@ -73,7 +73,8 @@ def lower_inverse(C, leaf: int = 2 * PIECE):
     blocks of at most ``leaf`` rows (a triangular solve with the identity).
     About ``2 k^3 / 3`` flops in products; 5.4-6.5 ms at k = 624 on one
     core, where LAPACK's solve against the identity took 5.7-7.1 ms and
-    :func:`lower_solve` 8.7-9.6 (BENCHMARKS.md, issue 17, session 48)."""
+    :func:`lower_solve` of 624 columns 10.9 ms (BENCHMARKS.md, issue 17,
+    sessions 47-48)."""
     n = C.shape[0]
     if n <= leaf:
         return jax.scipy.linalg.solve_triangular(C, jnp.eye(n, dtype=C.dtype), lower=True)
