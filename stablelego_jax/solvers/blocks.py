@@ -161,8 +161,9 @@ def block_cholesky(D, E, live=None, cuts=(), below=None):
             raise ValueError("block_cholesky: below= does not cut layers (live=)")
 
         # E's blocks with the inverse, not the inverse's Gram Ci' Ci sandwiched between
-        # them: that product lost the cancellation inside G, and the unit cube's interior
-        # point diverged (factors 1e-7 off by the third layer; BENCHMARKS.md, session 48)
+        # them as the Schur update: that product lost the cancellation inside G, and an
+        # interior point of unit bricks diverged (its factors 5e-8 to 3e-7 of their largest
+        # entry off by the third and fourth layers; BENCHMARKS.md, session 48)
         def sparse_body(Gprev, inp):
             Dl, El, bl = inp
             C = jax.lax.linalg.cholesky(Dl - lower_gram(Gprev), symmetrize_input=False)

@@ -87,9 +87,10 @@ class IPMOptions:
     rank-one terms are assembled from their supports (a batch, not cut,
     forms them as one product). below: a layered problem whose supports
     table holds every block coupling two levels (:func:`below_ok`; set by
-    :func:`options_for`) factors each layer through its pivot block's
-    inverse (:func:`~stablelego_jax.solvers.blocks.block_cholesky`'s
-    ``below``): the same numbers to rounding, about half the flops a layer.
+    :func:`options_for`) forms each layer's ``C^-1 E'`` from its pivot
+    block's inverse and E's blocks at the supports
+    (:func:`~stablelego_jax.solvers.blocks.block_cholesky`'s ``below``):
+    the same numbers to rounding; the unit cube's solve 0.84-0.99x the time.
     """
 
     max_iter: int = 80
@@ -113,9 +114,10 @@ class IPMOptions:
 #: branch cost (dense 40 on the small set, session 40).
 CUT_MIN = 40
 
-#: Fewest slots a layer for :attr:`IPMOptions.below`: a layer's step through its pivot's
-#: inverse took 0.62-0.76x the time at 104 slots, 0.69-0.85x at 56, about the same or more
-#: at 16-32 (one core; BENCHMARKS.md, issue 17, session 48).
+#: Fewest slots a layer for :attr:`IPMOptions.below`. Measured at 104 slots (the unit
+#: cube's solve 0.84-0.99x the time); the bound is where `benchmarks/layer_step.py`'s
+#: gathers stopped paying in a step through the pivot's inverse (16-32 slots: 0.84-1.14x,
+#: one core; BENCHMARKS.md, issue 17, session 48).
 BELOW_MIN_SLOTS = 48
 
 
