@@ -152,33 +152,25 @@ def block_cholesky(D, E, live=None, cuts=(), below=None):
         # transposing pass over the matrix
         return jax.lax.linalg.cholesky(D, symmetrize_input=False), jnp.zeros_like(D)
 
-    def layer(Gprev, Dl, El):
+    def layer(Gprev, Dl, El, bl=None):
         C = jax.lax.linalg.cholesky(Dl - lower_gram(Gprev), symmetrize_input=False)
-        return C, lower_solve(C, El.T)
-
-    if below is not None:
-        if live is not None:
-            raise ValueError("block_cholesky: below= does not cut layers (live=)")
-
+        if bl is None:
+            return C, lower_solve(C, El.T)
         # E's blocks with the inverse, not the inverse's Gram Ci' Ci sandwiched between
         # them as the Schur update: that product lost the cancellation inside G, and an
         # interior point of unit bricks diverged (its factors 5e-8 to 3e-7 of their largest
         # entry off by the third and fourth layers; BENCHMARKS.md, session 48)
-        def sparse_body(Gprev, inp):
-            Dl, El, bl = inp
-            C = jax.lax.linalg.cholesky(Dl - lower_gram(Gprev), symmetrize_input=False)
-            G = below_product(lower_inverse(C), below_blocks(El, bl), bl)
-            return G, (C, G)
+        return C, below_product(lower_inverse(C), below_blocks(El, bl), bl)
 
-        _, (C, G) = jax.lax.scan(sparse_body, jnp.zeros_like(D[0]), (D, E, jnp.asarray(below)))
-        return C, G
+    if below is not None and live is not None:
+        raise ValueError("block_cholesky: below= does not cut layers (live=)")
 
     if live is None or len(cuts) < 2:
         def body(Gprev, inp):
             C, G = layer(Gprev, *inp)
             return G, (C, G)
 
-        _, (C, G) = jax.lax.scan(body, jnp.zeros_like(D[0]), (D, E))
+        _, (C, G) = jax.lax.scan(body, jnp.zeros_like(D[0]), (D, E) if below is None else (D, E, jnp.asarray(below)))
         return C, G
 
     k = D.shape[-1]
