@@ -12,7 +12,7 @@ Two ways to form one layer's step, timed after compile (jitted, best of ``--repe
 * ``today`` (``block_cholesky``): ``C = chol(D - G'G)`` with ``lower_gram``, then
   ``G = C^-1 E'`` with ``lower_solve`` (dense in E): about ``2.6 k^3`` flops;
 * ``inverse`` (not in the library): ``C = chol(D - S)``, the triangular inverse ``Li = C^-1``
-  (recursive 2 x 2 blocks), ``Mi = Li' Li`` (panels that skip ``Li``'s zero rows), and the
+  (``blocks.lower_inverse``), ``Mi = Li' Li`` (panels that skip ``Li``'s zero rows), and the
   next Schur update ``S = E Mi E'`` from E's ``K`` blocks a brick (gathers of ``Mi`` at the
   supports): about ``1.3 k^3`` flops plus the gathers, which grow with ``K``.
 
@@ -41,19 +41,7 @@ import numpy as np  # noqa: E402
 
 jax.config.update("jax_enable_x64", True)
 
-from stablelego_jax.solvers.blocks import PIECE, lower_gram, lower_solve  # noqa: E402
-
-
-def tri_inverse(C, leaf: int = 96):
-    """``C^-1`` of a lower triangular C by 2 x 2 blocks (split at a multiple of PIECE)."""
-    n = C.shape[0]
-    if n <= leaf:
-        return jax.scipy.linalg.solve_triangular(C, jnp.eye(n, dtype=C.dtype), lower=True)
-    h = (n // 2 + PIECE - 1) // PIECE * PIECE
-    Ai, Ci = tri_inverse(C[:h, :h], leaf), tri_inverse(C[h:, h:], leaf)
-    low = -(Ci @ (C[h:, :h] @ Ai))
-    return jnp.concatenate([jnp.concatenate([Ai, jnp.zeros((h, n - h), C.dtype)], 1),
-                            jnp.concatenate([low, Ci], 1)])
+from stablelego_jax.solvers.blocks import below_product, lower_gram, lower_inverse, lower_solve  # noqa: E402
 
 
 def tri_gram(Li, panels: int = 4):
@@ -84,10 +72,10 @@ def case(B: int, K: int, repeat: int, seed: int = 0) -> dict:
 
     def inverse(Sprev, Dl, Ec, sup):
         C = jax.lax.linalg.cholesky(Dl - Sprev, symmetrize_input=False)
-        Li = tri_inverse(C)
+        Li = lower_inverse(C)
         Mi = tri_gram(Li)
         Mi = jnp.tril(Mi) + jnp.tril(Mi, -1).T
-        U = jnp.einsum("rjqc,jqdc->rjd", Mi.reshape(k, B, 6)[:, sup], Ec).reshape(B, 6, k)  # (Mi E')'
+        U = below_product(Mi, Ec, sup).reshape(B, 6, k)  # Mi E', its rows by brick
         S = jnp.einsum("iqba,iqac->ibc", Ec, U[sup]).reshape(k, k)
         return C, Li, S
 
