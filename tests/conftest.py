@@ -9,8 +9,8 @@ import tempfile
 # The suite compiles with XLA's CPU backend at optimisation level 0 (its
 # processes, xdist's workers and every subprocess a test starts inherit it):
 # the suite is mostly compiling, and LLVM's passes are most of a compile. On a
-# 2-core CPU the suite took 6.5 min instead of 10.7 (BENCHMARKS.md, "The test
-# suite's compiles"). The level changes no HLO, only the machine code; the
+# 2-core CPU the suite took 6.5-7.8 min instead of 10.7 (BENCHMARKS.md, "The
+# test suite's compiles"). The level changes no HLO, only the machine code; the
 # answers are the shipped build's to rounding, which
 # tests/test_runtime.py checks against a run at XLA's defaults, and the
 # tests whose claim is bitwise equality run at the defaults
@@ -21,8 +21,11 @@ import tempfile
 # records the user's).
 SHIPPING_XLA_FLAGS = os.environ.setdefault("STABLELEGO_SHIPPING_XLA_FLAGS", os.environ.get("XLA_FLAGS", ""))
 SUITE_XLA_FLAG = "--xla_backend_optimization_level=0"
-SHIPPING = os.environ.get("STABLELEGO_TEST_XLA", "").strip().lower() == "default"
-if not SHIPPING and "xla_backend_optimization_level" not in SHIPPING_XLA_FLAGS:
+# whether this process compiles at the suite's level 0 (not asked for the defaults, and
+# no level of the user's own)
+LEVEL_0 = (os.environ.get("STABLELEGO_TEST_XLA", "").strip().lower() != "default"
+           and "xla_backend_optimization_level" not in SHIPPING_XLA_FLAGS)
+if LEVEL_0:
     os.environ["XLA_FLAGS"] = f"{SHIPPING_XLA_FLAGS} {SUITE_XLA_FLAG}".strip()
 
 import jax  # noqa: E402 (after XLA_FLAGS)
@@ -47,7 +50,7 @@ def rerun_at_shipping_xla(request) -> bool:
     the test again in a pytest subprocess at XLA's defaults, assert that it
     passed, and return True (the caller returns); False when this process
     compiles at the defaults already (the caller runs its body)."""
-    if os.environ.get("XLA_FLAGS", "") == SHIPPING_XLA_FLAGS:
+    if not LEVEL_0:
         return False
     root = str(request.config.rootpath)
     r = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "-p", "no:xdist",
