@@ -21,7 +21,9 @@ existence (divided by the weights), which keeps them regular at ``w = 0``.
 
 :func:`central_path` has a custom VJP (implicit differentiation): one
 transposed Newton system ``J^T lam = dL/dx`` at the solution (J: the
-Jacobian of the barrier problem's optimality conditions R), returning
+Jacobian of the barrier problem's optimality conditions R; factorised at
+the solution, solved with one step of iterative refinement),
+returning
 ``-(dR/dtheta)^T lam`` for theta = (weights, loads, the columns' wrenches
 ``prob.col_coef``; no other leaf of the problem is differentiated). Nothing is unrolled.
 ``jit`` and ``vmap`` work; float64 is switched on inside (forward and
