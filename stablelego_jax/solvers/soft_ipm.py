@@ -5,7 +5,8 @@ barrier parameter ``mu``, for a :class:`~stablelego_jax.soft.SoftProblem`
 with existence weights and extra loads (see :mod:`stablelego_jax.loss` for
 the problem, its units and what its gradient means). It is solved by an
 infeasible primal-dual interior-point method (Mehrotra predictor-corrector,
-then centring steps with a second-order corrector; at most ``iters``
+then centring steps with a second-order corrector, their directions
+refined once (:func:`_refined`); at most ``iters``
 iterations of the loop both interior points share,
 :func:`~stablelego_jax.solvers.interior.iterate`, stopping once the
 iterate is centred at ``mu``) in which each Newton system is reduced, per
@@ -393,6 +394,31 @@ def _solve(ctx: SoftContext, plan: _Plan, lin: _Lin, r, transpose: bool = False,
     return (dS, dD, dt), y, d2
 
 
+def _refined(ctx: SoftContext, plan: _Plan, lin: _Lin, r, transpose: bool = False):
+    """:func:`_solve` and one step of iterative refinement on the unreduced
+    system, with the residual-price rows y as unknowns: ``J0 d + Phi^T A^T
+    y = r`` and ``A~ Phi d - y / ddpsi = 0`` (J0: the Newton matrix with the
+    price frozen, from ``lin.pc``; A and A~ swap with ``transpose``). The
+    reduced solve leaves the second block off by ~1% where ddpsi is large
+    (the cancellation in ``A~ Phi d``); one step brings both residuals to
+    ~1e-12 (session 49). Returns (d, y, d2) as :func:`_solve`."""
+    pc = lin.pc
+    f, g = _fg(pc, transpose)
+    left, right = _sides(ctx, transpose)
+    n = r[2].shape[0]
+    d, y, d2 = _solve(ctx, plan, lin, r, transpose)
+    dS, dD, dt = d
+    aty = equilibrium_t(right, ctx.cb, y)
+    jS = pc.hS * dS + jnp.where(ctx.real, aty, 0.0)
+    jD = pc.hD * dD + jnp.where(ctx.pair, f * _ext(dt)[ctx.owner] - aty, 0.0)
+    jt = (pc.h3 + bottom_sum(jnp.where(ctx.normal, pc.h2o, 0.0), ctx.group)) * dt \
+        + bottom_sum(jnp.where(ctx.pair, g * dD, 0.0), ctx.group)
+    res = (r[0] - jS, r[1] - jD, r[2] - jt)
+    e = y / pc.ddpsi - equilibrium(left, ctx.cb, column_force(d, ctx), n)
+    dd, dy, dd2 = _solve(ctx, plan, lin, res, transpose, ry_rhs=e)
+    return _axpy(1.0, dd, d), y + dy, d2 + dd2
+
+
 # --------------------------------------------------------------------------
 # the interior-point method
 
@@ -451,9 +477,9 @@ def _ipm(ctx: SoftContext, opts: BarrierOptions):
         rr, pc = _system(x, ctx, dpsi, ddpsi, zeta[:4], h[:4], opts)
         return rp, h, R_r, dpsi, rr, pc
 
-    def direction(x, r, s, z, target, lin, cap):
+    def direction(x, r, s, z, target, lin, cap, refine):
         rp, h, _, dpsi, rr, _ = pieces(x, r, s, z, target)
-        (dS, dD, dt), y, d2 = _solve(ctx, plan, lin, rr)
+        (dS, dD, dt), y, d2 = jax.lax.cond(refine, lambda: _refined(ctx, plan, lin, rr), lambda: _solve(ctx, plan, lin, rr))
         dx = (-dS, -dD, -dt)
         # the residual rows' duals from y (the backward-stable part of the
         # solve): their dual equations hold to rounding, and the rounding
@@ -526,7 +552,7 @@ def _ipm(ctx: SoftContext, opts: BarrierOptions):
         cap = jnp.where(centring_now, 2.0, 1.0)
 
         def phase(target, _):
-            out = direction(x, r, s, z, target, lin, cap)
+            out = direction(x, r, s, z, target, lin, cap, centring_now)
             _, _, ds1, dz1, st1 = out
             a = jnp.minimum(st1, 1.0)
             mu_a = mean_gap(_axpy(a, ds1, s), _axpy(a, dz1, z))
@@ -618,20 +644,9 @@ def _x_bwd(opts, res, ct):
     ctx0 = soft_context(weights, loads, prob, opts.params)
     _, pc = _barrier_system(x, ctx0, ctx0, dpsi, ddpsi, opts)
     plan0 = _plan(ctx0)
-    lin = _factor(ctx0, plan0, pc)
-    lam, y, _ = _solve(ctx0, plan0, lin, ct[0], transpose=True)
-    # one step of iterative refinement on the transposed system written with
-    # y as an unknown (J0^T lam + (A~ Phi)^T y = x_bar, A Phi lam - y / ddpsi
-    # = 0; J0: J with the price frozen): the reduced solve leaves the second
-    # equation off by ~1% where ddpsi is large (the cancellation in A Phi
-    # lam), which moved gradients by up to 7e-6 relative between two
-    # numberings of one problem; one step brings both residuals to ~1e-12
-    _, j0t = jax.vjp(lambda v: _barrier_system(v, ctx0, None, dpsi, ddpsi, opts)[0], x)
-    _, at = jax.vjp(lambda v: brick_residual(ctx0, column_force(v, ctx0)), x)
-    r = jax.tree_util.tree_map(lambda c, a, b: c - a - b, ct[0], j0t(lam)[0], at(y)[0])
-    e = y / ddpsi - equilibrium(ctx0.coef, ctx0.cb, column_force(lam, ctx0), ctx0.g.shape[0])
-    dlam, dy, _ = _solve(ctx0, plan0, lin, r, transpose=True, ry_rhs=e)
-    lam, y = _axpy(1.0, dlam, lam), y + dy
+    # refined: without, gradients moved by up to 7e-6 relative between two
+    # numberings of one problem (session 49)
+    lam, y, _ = _refined(ctx0, plan0, _factor(ctx0, plan0, pc), ct[0], transpose=True)
 
     def rfun(w, l, cc):  # R with the residual rows' price frozen
         return _barrier_system(x, soft_context(w, l, prob._replace(col_coef=cc), opts.params), None, dpsi, ddpsi,
