@@ -6,7 +6,7 @@ with existence weights and extra loads (see :mod:`stablelego_jax.loss` for
 the problem, its units and what its gradient means). It is solved by an
 infeasible primal-dual interior-point method (Mehrotra predictor-corrector,
 then centring steps with a second-order corrector, their directions
-refined once (:func:`_refined`); at most ``iters``
+refined once (:func:`_correction`); at most ``iters``
 iterations of the loop both interior points share,
 :func:`~stablelego_jax.solvers.interior.iterate`, stopping once the
 iterate is centred at ``mu``) in which each Newton system is reduced, per
@@ -394,29 +394,33 @@ def _solve(ctx: SoftContext, plan: _Plan, lin: _Lin, r, transpose: bool = False,
     return (dS, dD, dt), y, d2
 
 
-def _refined(ctx: SoftContext, plan: _Plan, lin: _Lin, r, transpose: bool = False):
-    """:func:`_solve` and one step of iterative refinement on the unreduced
-    system, with the residual-price rows y as unknowns: ``J0 d + Phi^T A^T
-    y = r`` and ``A~ Phi d - y / ddpsi = 0`` (J0: the Newton matrix with the
-    price frozen, from ``lin.pc``; A and A~ swap with ``transpose``). The
-    reduced solve leaves the second block off by ~1% where ddpsi is large
-    (the cancellation in ``A~ Phi d``); one step brings both residuals to
-    ~1e-12 (session 49). Returns (d, y, d2) as :func:`_solve`."""
+def _correction(ctx: SoftContext, plan: _Plan, lin: _Lin, r, sol, transpose: bool = False):
+    """One step of iterative refinement of ``sol = _solve(..., r, transpose)``
+    on the unreduced system, with the residual-price rows y as unknowns:
+    ``J0 d + Phi^T A^T y = r`` and ``A~ Phi d - y / ddpsi = 0`` (J0: the
+    Newton matrix with the price frozen, from ``lin.pc``; A and A~ swap with
+    ``transpose``). The reduced solve leaves the second block off by ~1%
+    where ddpsi is large (the cancellation in ``A~ Phi d``); one step brings
+    both residuals to ~1e-12 (session 49). Returns the correction to add to
+    (d, y, d2)."""
     pc = lin.pc
     f, g = _fg(pc, transpose)
     left, right = _sides(ctx, transpose)
-    n = r[2].shape[0]
-    d, y, d2 = _solve(ctx, plan, lin, r, transpose)
-    dS, dD, dt = d
+    (dS, dD, dt), y, _ = sol
     aty = equilibrium_t(right, ctx.cb, y)
     jS = pc.hS * dS + jnp.where(ctx.real, aty, 0.0)
     jD = pc.hD * dD + jnp.where(ctx.pair, f * _ext(dt)[ctx.owner] - aty, 0.0)
     jt = (pc.h3 + bottom_sum(jnp.where(ctx.normal, pc.h2o, 0.0), ctx.group)) * dt \
         + bottom_sum(jnp.where(ctx.pair, g * dD, 0.0), ctx.group)
     res = (r[0] - jS, r[1] - jD, r[2] - jt)
-    e = y / pc.ddpsi - equilibrium(left, ctx.cb, column_force(d, ctx), n)
-    dd, dy, dd2 = _solve(ctx, plan, lin, res, transpose, ry_rhs=e)
-    return _axpy(1.0, dd, d), y + dy, d2 + dd2
+    e = y / pc.ddpsi - equilibrium(left, ctx.cb, column_force(sol[0], ctx), dt.shape[0])
+    return _solve(ctx, plan, lin, res, transpose, ry_rhs=e)
+
+
+def _refined(ctx: SoftContext, plan: _Plan, lin: _Lin, r, transpose: bool = False):
+    """:func:`_solve` and one :func:`_correction`: (d, y, d2)."""
+    sol = _solve(ctx, plan, lin, r, transpose)
+    return _axpy(1.0, _correction(ctx, plan, lin, r, sol, transpose), sol)
 
 
 # --------------------------------------------------------------------------
@@ -479,7 +483,12 @@ def _ipm(ctx: SoftContext, opts: BarrierOptions):
 
     def direction(x, r, s, z, target, lin, cap, refine):
         rp, h, _, dpsi, rr, _ = pieces(x, r, s, z, target)
-        (dS, dD, dt), y, d2 = jax.lax.cond(refine, lambda: _refined(ctx, plan, lin, rr), lambda: _solve(ctx, plan, lin, rr))
+        sol = _solve(ctx, plan, lin, rr)
+        # centring steps refined (a cond: the predictor steps do not pay; under
+        # vmap a select, one more solve for every step)
+        sol = _axpy(1.0, jax.lax.cond(refine, lambda: _correction(ctx, plan, lin, rr, sol),
+                                      lambda: jax.tree_util.tree_map(jnp.zeros_like, sol)), sol)
+        (dS, dD, dt), y, d2 = sol
         dx = (-dS, -dD, -dt)
         # the residual rows' duals from y (the backward-stable part of the
         # solve): their dual equations hold to rounding, and the rounding
