@@ -218,9 +218,9 @@ def main():
     opts = TIGHT if a.tight else OPTS
     if a.centred is not None:
         opts = dataclasses.replace(OPTS, centred=a.centred, iters=100)
-    if opts is not OPTS:
+    differences = opts is OPTS  # central differences at the default stopping only
+    if not differences:
         use(opts)
-        a.tight = True  # no central differences
     if a.control:
         rows = [control_case(f, load_layout(os.path.join(lg.REF, f))) for f in sorted(os.listdir(lg.REF))
                 if f.endswith(".json")]
@@ -236,7 +236,7 @@ def main():
         if lay.n <= 60 and lg.fits(lay):
             gen.append((f"{fam}/{seed - 1}", lay))
     rng = np.random.default_rng(0)  # the draws of loss_gradients.py
-    fd = [fd_case(name, lay, rng, differences=not a.tight) for name, lay in refs + gen[: a.n_fd]]
+    fd = [fd_case(name, lay, rng, differences=differences) for name, lay in refs + gen[: a.n_fd]]
     ver = [verdict_case(name, lay) for name, lay in refs + gen[: a.n_verdict]]
     shapes = {layer_bucket(*soft_layer_plan(soft_problem(lay))) for _, lay in refs + gen}
     summary = {
@@ -254,7 +254,7 @@ def main():
     summary.update(losses=len(losses), losses_within_1e8_rel=sum(rel <= 1e-8 for rel, _ in losses),
                    losses_within_1e8_rel_or_1e14_abs=sum(rel <= 1e-8 or ab <= 1e-14 for rel, ab in losses),
                    grads_within_1e6=sum(r["grad_max_abs_diff"] <= 1e-6 for r in fd))
-    if not a.tight:
+    if differences:
         for k in ("fd_max_rel_err", "fd_tight_max_rel_err"):
             summary[k] = max(r[k] for r in fd)
             summary[k.replace("max_rel_err", "layouts_under_5pct")] = sum(r[k] < 0.05 for r in fd)

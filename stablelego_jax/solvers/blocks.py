@@ -134,7 +134,7 @@ def block_cholesky(D, E, live=None, cuts=(), below=None):
     from the pivot block's inverse (:func:`lower_inverse`) and E's blocks
     (:func:`below_product`): about ``2 k^3 / 3`` flops instead of
     :func:`lower_solve`'s ``k^3`` against a dense E. The unit cube's
-    solve took 0.85-0.96x the time (BENCHMARKS.md, issue 17, session 48).
+    solve took 0.84-0.99x the time (BENCHMARKS.md, issue 17, session 48).
     The same numbers to rounding. Not with ``live``.
 
     live ((L,) int, traced) and cuts (static sizes, ascending, the last
