@@ -44,6 +44,7 @@ from ..runtime import x64
 from ..score import bottom_sum, equilibrium, equilibrium_t
 from ..soft import SoftProblem
 from .blocks import block_cholesky, block_solve, layer_cuts
+from .branch import cond_any
 from .interior import boundary_step, centring, iterate
 from .newton import reduced_matrix
 from .problem import row_scale, scaled_wrenches
@@ -417,6 +418,19 @@ def _correction(ctx: SoftContext, plan: _Plan, lin: _Lin, r, sol, transpose: boo
     return _solve(ctx, plan, lin, res, transpose, ry_rhs=e)
 
 
+def _refine_with(plan: _Plan):
+    """:func:`_correction` as a function of arrays only (for
+    :func:`~.branch.cond_any`): the plan's brick slots and live rows
+    passed in, its static sizes closed over."""
+    def rare(ctx, pos, live, lin, r, sol):
+        return _correction(ctx, plan._replace(pos=pos, live=live), lin, r, sol)
+    return rare
+
+
+def _unrefined(ctx, pos, live, lin, r, sol):
+    return jax.tree_util.tree_map(jnp.zeros_like, sol)
+
+
 def _refined(ctx: SoftContext, plan: _Plan, lin: _Lin, r, transpose: bool = False):
     """:func:`_solve` and one :func:`_correction`: (d, y, d2)."""
     sol = _solve(ctx, plan, lin, r, transpose)
@@ -484,10 +498,10 @@ def _ipm(ctx: SoftContext, opts: BarrierOptions):
     def direction(x, r, s, z, target, lin, cap, refine):
         rp, h, _, dpsi, rr, _ = pieces(x, r, s, z, target)
         sol = _solve(ctx, plan, lin, rr)
-        # centring steps refined (a cond: the predictor steps do not pay; under
-        # vmap a select, one more solve for every step)
-        sol = _axpy(1.0, jax.lax.cond(refine, lambda: _correction(ctx, plan, lin, rr, sol),
-                                      lambda: jax.tree_util.tree_map(jnp.zeros_like, sol)), sol)
+        # centring steps refined (a branch: the predictor steps do not pay; under
+        # vmap the batch pays only while one of its members centres)
+        sol = _axpy(1.0, cond_any(refine, _refine_with(plan), _unrefined, ctx, plan.pos, plan.live, lin, rr, sol),
+                    sol)
         (dS, dD, dt), y, d2 = sol
         dx = (-dS, -dD, -dt)
         # the residual rows' duals from y (the backward-stable part of the
