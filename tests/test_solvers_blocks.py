@@ -93,6 +93,17 @@ def test_lower_gram_is_the_lower_triangle_of_the_gram_matrix(k):
     np.testing.assert_allclose(np.tril(P), np.tril(G.T @ G), rtol=1e-12, atol=1e-9)
 
 
+@pytest.mark.parametrize("k", [100, 390])
+def test_lower_gram_of_two_batched_factors_is_the_lower_triangle_of_their_product(k):
+    """``lower_gram(G, H)`` over a batch dimension: tril of each ``G[i]' H[i]`` (G, H of 30 rows)."""
+    rng = np.random.default_rng(2)
+    G, H = rng.normal(size=(3, 30, k)), rng.normal(size=(3, 30, k))
+    P = np.asarray(lower_gram(jnp.asarray(G), jnp.asarray(H)))
+    assert P.shape == (3, k, k)
+    for i in range(3):
+        np.testing.assert_allclose(np.tril(P[i]), np.tril(G[i].T @ H[i]), rtol=1e-12, atol=1e-9)
+
+
 @pytest.mark.parametrize("k,r", [(5, 3), (PIECE, 7), (192, 192), (PIECE * 3 + 10, 40)])
 def test_lower_solve_is_the_triangular_solve(k, r):
     """lower_solve(C, R) = C^-1 R for the Cholesky factor C of an SPD

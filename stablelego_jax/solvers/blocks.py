@@ -50,20 +50,23 @@ def layer_picks(live, cuts, xp=jnp):
     return xp.minimum(xp.searchsorted(xp.asarray(cuts), need), len(cuts) - 1)
 
 
-def lower_gram(G):
-    """``G' G`` ((k, k)) where a Cholesky reads it: its lower triangle,
-    diagonal included (above it: zeros, or the full product for one
-    panel), one product per panel of rows, ``G[:, panel]' G[:, :end]``,
-    about ``(1 + 1 / p) k^3`` flops for ``p`` panels instead of the full
-    product's ``2 k^3``; ``p = min(4, k // 128)`` (one panel below 256
-    rows, where smaller products run slower)."""
+def lower_gram(G, H=None):
+    """``G' H`` ((..., k, k); H default G) where a Cholesky reads it: its
+    lower triangle, diagonal included (above it: zeros, or the full product
+    for one panel), one product per panel of rows, ``G[..., panel]'
+    H[..., :end]``, about ``(1 + 1 / p) k^3`` flops for ``p`` panels instead
+    of the full product's ``2 k^3`` (G (k, k)); ``p = min(4, k // 128)``
+    (one panel below 256 rows, where smaller products run slower). Leading
+    dimensions of G and H (equal) are batch dimensions."""
+    H = G if H is None else H
     k = G.shape[-1]
     p = max(1, min(4, k // 128))
     if p == 1:
-        return G.T @ G
+        return jnp.swapaxes(G, -1, -2) @ H
     w = -(-k // p)
-    strips = [G[:, a:min(k, a + w)].T @ G[:, :min(k, a + w)] for a in range(0, k, w)]
-    return jnp.concatenate([jnp.pad(s, ((0, 0), (0, k - s.shape[1]))) for s in strips])
+    strips = [jnp.swapaxes(G[..., a:min(k, a + w)], -1, -2) @ H[..., :min(k, a + w)] for a in range(0, k, w)]
+    pad = [(0, 0)] * (G.ndim - 2)
+    return jnp.concatenate([jnp.pad(s, pad + [(0, 0), (0, k - s.shape[-1])]) for s in strips], axis=-2)
 
 
 def lower_inverse(C, leaf: int = 2 * PIECE):

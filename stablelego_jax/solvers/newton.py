@@ -36,6 +36,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
+from .blocks import lower_gram
 from .problem import block_windows, gram_plan
 
 __all__ = ["reduced_matrix"]
@@ -62,7 +63,9 @@ def reduced_matrix(col_brick, coef, normal, n: int, L: int, chunks=None, support
 
     Returns ``assemble(e, q, rho, dr) -> (D, E)``, e and q (m,), rho (n,), dr
     (n * 6,): the (L, 6 B, 6 B) diagonal blocks and blocks below them of
-    M (the layout of :mod:`.blocks`). One block with no ``supports``:
+    M (the layout of :mod:`.blocks`); layered without ``supports``, D is
+    exact in its lower triangle (diagonal included), what the block
+    Cholesky reads, and partial above it. One block with no ``supports``:
     ``assemble(..., split=True) -> (D, E, P)`` leaves the bricks' rank-one
     terms out of D as their factor P ((n, 6 n), ``M = D + P' P``), for
     :func:`~stablelego_jax.solvers.blocks.cut_cholesky`."""
@@ -124,7 +127,8 @@ def reduced_matrix(col_brick, coef, normal, n: int, L: int, chunks=None, support
             # level l + 1's supports' parts (rows: its bricks, columns: level l's slots), moved
             # down a level before the products (not the (L, k, k) products after them)
             W = down(rows6(w_row, w_col, q[:, None] * c12[:, 6:]).reshape(L, B, k6))
-            D0 = jnp.matmul(jnp.swapaxes(W * down(rho.reshape(L, B))[..., None], 1, 2), W)
+            # their Gram W' diag(rho) W: its lower triangle only, the part the block Cholesky reads
+            D0 = lower_gram(W * down(rho.reshape(L, B))[..., None], W)
             E0 = (down(ro.reshape(L, B, 6))[..., None] * W[:, :, None, :]).reshape(L, k6, k6)
             # each brick's 6 x 6 diagonal block rho o o' + diag(dr), with the Gram's windows
             P = ro[:, :, None] * o[:, None, :] + jax.vmap(jnp.diag)(dr.reshape(n, 6))
