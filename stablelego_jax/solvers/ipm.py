@@ -373,15 +373,19 @@ def solve(prob: Problem, params: Params = Params(), opts: IPMOptions = IPMOption
         s = G(z)
         mu = dot(s, lam * act) / n_act
         f = factor(z, lam)
-        # predictor
-        rc = s * lam * act
-        dz, dnu, ds, dlam = direction(f, z, lam, rd, rp_res, rc)
-        ap, ad = max_step(s, ds), max_step(lam, dlam)
-        mu_aff = dot(s + ap * ds, (lam + ad * dlam) * act) / n_act
-        sigma = centring(mu_aff, mu)
-        # corrector
-        rc = (s * lam + ds * dlam - sigma * mu) * act
-        dz, dnu, ds, dlam = direction(f, z, lam, rd, rp_res, rc)
+
+        def phase(rc, _):
+            # the predictor (rc: the complementarity products), then the corrector (rc: Mehrotra's,
+            # from the predictor's step): one traced direction in a scan of two, a smaller program
+            d = direction(f, z, lam, rd, rp_res, rc)
+            _, _, ds, dlam = d
+            ap, ad = max_step(s, ds), max_step(lam, dlam)
+            mu_aff = dot(s + ap * ds, (lam + ad * dlam) * act) / n_act
+            sigma = centring(mu_aff, mu)
+            return (s * lam + ds * dlam - sigma * mu) * act, d
+
+        _, dirs = jax.lax.scan(phase, s * lam * act, None, length=2)
+        dz, dnu, ds, dlam = (v[1] for v in dirs)
         ap = opts.step * max_step(s, ds)
         ad = opts.step * max_step(lam, dlam)
         z = z + ap * dz
