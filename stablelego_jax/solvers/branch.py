@@ -2,10 +2,12 @@
 
 ``lax.cond`` with a predicate that differs across a ``vmap``-ed batch is
 batched by JAX as a select: both branches run for every member, every
-time. Both solvers branch on something rarely true (the soft interior
-point refines its centring steps' directions, the last few of its
-iterations; the ADMM refactors when a member's step size moved), so a
-batch paid for the rare branch on every iteration. :func:`cond_any` is
+time. The soft interior point branches on something rarely true (it
+refines its centring steps' directions, the last few of its iterations),
+so a batch paid for the rare branch on every iteration. (The ADMM's
+refactorisation when a step size moves was tried with it and not kept:
+2% less solve time, 12% more compile on a CPU; BENCHMARKS.md, issue 18,
+session 50.) :func:`cond_any` is
 ``lax.cond`` unbatched; batched, it runs the rare branch (for the whole
 batch) only in the iterations where at least one member takes it, and each
 member keeps its own branch's value. Pure JAX; jit- and vmap-friendly

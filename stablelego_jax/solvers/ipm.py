@@ -376,7 +376,9 @@ def solve(prob: Problem, params: Params = Params(), opts: IPMOptions = IPMOption
 
         def phase(rc, _):
             # the predictor (rc: the complementarity products), then the corrector (rc: Mehrotra's,
-            # from the predictor's step): one traced direction in a scan of two, a smaller program
+            # from the predictor's step): one traced direction in a scan of two, a smaller program;
+            # the corrector's own step and next target are computed too and dropped (a few passes
+            # over the slacks, no solve)
             d = direction(f, z, lam, rd, rp_res, rc)
             _, _, ds, dlam = d
             ap, ad = max_step(s, ds), max_step(lam, dlam)
