@@ -313,3 +313,38 @@ def test_training_on_a_pool_that_would_hang_is_a_clear_error(tmp_path, capsys, m
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "deadlock" in err and "PJRT_NPROC" in err
     assert not (tmp_path / "o").exists()
+
+
+def test_layered_subsets_give_the_dense_loss_and_gradient(tmp_path):
+    # the same placements solved by the block-tridiagonal factorisation
+    # (layers x slots) instead of one dense block: the same stability term
+    # and gradient (one interior point, two factorisations)
+    dense = _cfg(tmp_path)
+    layered = _cfg(tmp_path, layers=6, slots=8, chunk_pad=64)
+    arr = _batch(dense)
+    params = T.initial_params(dense, 0)
+    out = {}
+    with one_blas_thread():
+        for name, cfg in (("dense", dense), ("layered", layered)):
+            probs_fn, _, _, _, grad_fn = T.make_fns(cfg)
+            p = np.asarray(probs_fn(params, arr.x, arr.valid))
+            sub = T.batch_subsets(p, arr.valid, cfg, np.random.default_rng(0))
+            assert (sub.prob.layers is None) == (name == "dense")
+            out[name] = (sub.fi, grad_fn(params, np.float64(cfg["lam"]), np.float64(0.1),
+                                         arr.x, arr.valid, arr.target, *sub))
+    np.testing.assert_array_equal(out["dense"][0], out["layered"][0])  # the same placements
+    (ld, auxd, gd), (ll, auxl, gl) = out["dense"][1], out["layered"][1]
+    assert float(auxd[2]) > 1e-4  # a stability term to compare
+    assert float(ll) == pytest.approx(float(ld), rel=1e-8)
+    assert float(auxl[2]) == pytest.approx(float(auxd[2]), rel=1e-8)
+    for (wd, bd), (wl, bl) in zip(gd, gl):
+        scale = max(float(jnp.abs(wd).max()), 1e-12)
+        assert float(jnp.abs(wl - wd).max()) <= 1e-6 * scale
+        assert float(jnp.abs(bl - bd).max()) <= 1e-6 * max(float(jnp.abs(bd).max()), 1e-12)
+
+
+def test_layered_config_needs_a_layer_for_every_crop_layer(tmp_path):
+    with pytest.raises(T.ConfigError, match="layers"):
+        _cfg(tmp_path, layers=3)  # the crop is 6 high
+    with pytest.raises(T.ConfigError, match="chunk_pad"):
+        _cfg(tmp_path, layers=6, chunk_pad=0)

@@ -42,7 +42,7 @@ from ..files import atomic_write, atomic_write_text
 from ..layout import brick_layout, cells_of
 from ..runtime import x64
 from ..soft import compile_placements
-from ..solvers.problem import pad_soft, stack_soft
+from ..solvers.problem import layer_soft, pad_soft, pair_chunks, soft_layer_plan, stack_soft
 
 DEFAULTS = {
     "grid": 20,
@@ -73,6 +73,9 @@ DEFAULTS = {
     "m_pad": 2048,
     "p_pad": 64,
     "c_pad": 96,
+    "layers": 0,
+    "slots": 64,
+    "chunk_pad": 512,
     "subset_base": "strict",
     "share_scope": "all",
     "val_count": 0,
@@ -122,9 +125,14 @@ def load_config(path: str, **overrides) -> dict:
         if not ok:
             raise ConfigError(f"{path}: config key {k!r} must be {type(d).__name__}, got {v!r}")
         cfg[k] = float(v) if isinstance(d, float) else v
-    for k in ("steps", "batch", "n_pad", "m_pad", "p_pad", "c_pad", "checkpoint_every", "eval_every", "log_every"):
+    for k in ("steps", "batch", "n_pad", "m_pad", "p_pad", "c_pad", "slots", "chunk_pad", "checkpoint_every",
+              "eval_every", "log_every"):
         if cfg[k] < 1:
             raise ConfigError(f"{path}: config key {k!r} must be >= 1, got {cfg[k]}")
+    if cfg["layers"] != 0 and not (isinstance(cfg["crop"], list) and len(cfg["crop"]) == 3
+                                   and isinstance(cfg["crop"][2], int) and cfg["layers"] >= cfg["crop"][2]):
+        raise ConfigError(f"{path}: config key 'layers' must be 0 (dense) or at least the crop's height, "
+                          f"got {cfg['layers']} for crop {cfg['crop']}")
     if not (isinstance(cfg["crop"], list) and len(cfg["crop"]) == 3 and all(
             isinstance(c, int) and 8 <= c <= cfg["grid"] for c in cfg["crop"][:2]) and 1 <= cfg["crop"][2] <= cfg["grid"]):
         raise ConfigError(f"{path}: crop must be [cx, cy, cz] with 8 <= cx, cy <= grid and 1 <= cz <= grid")
@@ -224,14 +232,19 @@ class Subset(NamedTuple):
 def select_subset(p: np.ndarray, valid: np.ndarray, cfg: dict, rng: np.random.Generator, span=None) -> Subset:
     """Placements of one shape for the stability term and their padded problem.
 
-    p, valid, span: (X, Y, Z, K). Takes the decoded placements (lowest
+    p, valid, span: (X, Y, Z, K). The problem is dense, or with ``layers`` > 0
+    numbered layer by layer for the block-tridiagonal factorisation
+    (``layers`` x ``slots`` brick slots, ``chunk_pad`` column chunks:
+    :func:`~stablelego_jax.solvers.problem.layer_soft`), whose cost grows
+    with layers x slots^3 instead of bricks^3. Takes the decoded placements (lowest
     layers first; the strict decoding, or the filled one when
     ``subset_base`` is "filled", so every cell of the shape is in the
     problem), then the ``competitors`` most probable others, then
     ``random_competitors`` random ones among the ``span`` placements (those
     that reach from a supported cell into an overhang; all valid ones when
     None or when ``random_pool`` is "valid"), and drops from the end until the compiled problem fits
-    (n_pad, m_pad, p_pad, c_pad), keeping at least the competitors' share free.
+    (n_pad, m_pad, p_pad, c_pad; layered also layers, slots per layer and
+    column chunks), keeping at least the competitors' share free.
     """
     from .net import MASS, TYPES, decode
 
@@ -256,7 +269,7 @@ def select_subset(p: np.ndarray, valid: np.ndarray, cfg: dict, rng: np.random.Ge
         ucells, cell_id = np.unique(cells, axis=0, return_inverse=True)
         prob = compile_placements(pos, size, MASS[k])
         if (prob.col_kind.shape[0] <= cfg["m_pad"] and prob.group.shape[1] <= cfg["p_pad"]
-                and len(ucells) <= cfg["c_pad"]):
+                and len(ucells) <= cfg["c_pad"] and _fits_layers(prob, cfg)):
             break
         chosen = chosen[: max(len(chosen) - 4, 1)]
     n = len(chosen)
@@ -266,7 +279,21 @@ def select_subset(p: np.ndarray, valid: np.ndarray, cfg: dict, rng: np.random.Ge
     mask[:n] = True
     inc = np.zeros((cfg["c_pad"], cfg["n_pad"]))
     inc[np.ravel(cell_id), owner] = 1.0
-    return Subset(fi, mask, inc, pad_soft(prob, cfg["n_pad"], cfg["m_pad"], cfg["p_pad"]))
+    if cfg["layers"]:
+        prob = pad_soft(layer_soft(prob, cfg["layers"], cfg["slots"]), cfg["n_pad"], cfg["m_pad"], cfg["p_pad"],
+                        c_pad=cfg["chunk_pad"])
+    else:
+        prob = pad_soft(prob, cfg["n_pad"], cfg["m_pad"], cfg["p_pad"])
+    return Subset(fi, mask, inc, prob)
+
+
+def _fits_layers(prob, cfg: dict) -> bool:
+    """Whether a subset's problem fits the layered shape of ``cfg`` (always
+    when dense, ``layers`` 0)."""
+    if not cfg["layers"]:
+        return True
+    L, B = soft_layer_plan(prob)
+    return L <= cfg["layers"] and B <= cfg["slots"] and len(pair_chunks(prob)) <= cfg["chunk_pad"]
 
 
 def batch_subsets(p: np.ndarray, valid: np.ndarray, cfg: dict, rng: np.random.Generator, span=None) -> Subset:
