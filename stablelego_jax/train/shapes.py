@@ -1,14 +1,16 @@
-"""Target shapes for the generator: small objects in a (G, G, G) grid, split by object.
+"""Target shapes for the generator: objects in a (G, G, G) grid, split by object.
 
-Why small: the stability loss factorises a dense (6 n x 6 n) matrix per
-interior-point iteration on the CPU (training does not use the layered
-factorisation), so every soft problem of a training step is kept to a
-few dozen placements; the shapes are therefore objects of at most ~8 cells
-across and a few layers high (decoded layouts of ~5-40 bricks), placed in
-the 20^3 grid. Most procedural kinds have overhangs (arms, caps, decks,
-table tops, leaning stairs), where whether the layout stands depends on the
-bricks chosen: a cell with nothing below it must be held by a brick that
-reaches a supported cell.
+Two procedural sources. *Small* (the default configs): objects of at most
+~8 cells across and a few layers high (decoded layouts of ~5-40 bricks),
+placed in the 20^3 grid, so that every soft problem of a training step
+stays a few dozen placements, which a CPU factorises in a step. Most of
+their kinds have overhangs (arms, caps, decks, table tops, leaning stairs),
+where whether the layout stands depends on the bricks chosen: a cell with
+nothing below it must be held by a brick that reaches a supported cell.
+*Full*: shapes of the whole grid (:func:`full_shape`: blobs, stacked boxes,
+balls, arches, stems with caps or arms; hundreds to thousands of cells),
+for training at full scale with the layered factorisation (the config's
+``layers``), a CPU step costing tens of seconds (BENCHMARKS.md).
 
 Every shape is one *object* (a procedural seed or a mesh file); the split
 into train and held-out is over objects, seeded.
@@ -21,9 +23,15 @@ import os
 
 import numpy as np
 
-__all__ = ["Shape", "KINDS", "SPLITS", "procedural_shape", "mesh_shapes", "build_dataset"]
+__all__ = ["Shape", "KINDS", "FULL_KINDS", "PROCEDURAL", "SPLITS", "procedural_shape", "full_shape", "mesh_shapes",
+           "build_dataset"]
 
 KINDS = ("cantilever", "tee", "bridge", "table", "mushroom", "stairs", "box")
+#: the kinds of :func:`full_shape`: :func:`~stablelego_jax.generate.voxels.random_voxel_shape`'s,
+#: less "floating" (a part over an empty layer, which no layout of the shape's cells can hold)
+FULL_KINDS = ("blob", "boxes", "spheres", "arch", "overhang")
+#: the procedural sources of :func:`build_dataset`
+PROCEDURAL = ("small", "full")
 #: the splits of a config's shapes (:func:`stablelego_jax.train.train.split_shapes`)
 SPLITS = ("heldout", "val", "train")
 
@@ -91,6 +99,20 @@ def procedural_shape(seed: int, grid: int = 20, kind: str | None = None) -> Shap
     return Shape(name=f"proc{seed:05d}_{kind}", kind=kind, vox=out)
 
 
+def full_shape(seed: int, grid: int = 20, kind: str | None = None) -> Shape:
+    """A random object of the whole (grid,)*3 box (resting on layer 0, only
+    parts that touch it): :func:`~stablelego_jax.generate.voxels.random_voxel_shape`
+    of ``kind`` in :data:`FULL_KINDS` (None: drawn). May be empty (a blob
+    whose noise kept nothing); :func:`build_dataset` skips those."""
+    from ..generate.voxels import random_voxel_shape
+
+    rng = np.random.default_rng(seed)
+    kind = FULL_KINDS[int(rng.integers(len(FULL_KINDS)))] if kind is None else kind
+    if kind not in FULL_KINDS:
+        raise ValueError(f"unknown full-scale kind {kind!r} (known: {', '.join(FULL_KINDS)})")
+    return Shape(name=f"full{seed:05d}_{kind}", kind=kind, vox=random_voxel_shape(seed, grid, kind))
+
+
 def mesh_shapes(folder: str, grid: int = 20, extent: int = 6, max_cells: int = 90) -> tuple[list, list]:
     """The meshes of ``folder`` voxelized at ``extent`` cells and set on
     layer 0 of a (grid,)*3 box; meshes that fail to load, are empty or have
@@ -119,13 +141,18 @@ def mesh_shapes(folder: str, grid: int = 20, extent: int = 6, max_cells: int = 9
 
 
 def build_dataset(n_procedural: int, mesh_dir: str | None, seed: int, heldout_frac: float = 0.2,
-                  grid: int = 20, mesh_extent: int = 6, mesh_max_cells: int = 90):
+                  grid: int = 20, mesh_extent: int = 6, mesh_max_cells: int = 90, procedural: str = "small"):
     """(train, heldout, skipped): ``n_procedural`` procedural objects (seeds
-    derived from ``seed``) plus the meshes of ``mesh_dir``, split by object
-    (a seeded permutation; a fraction ``heldout_frac`` of each source held out)."""
+    derived from ``seed``; ``procedural``: "small", :func:`procedural_shape`,
+    or "full", :func:`full_shape`, whose empty draws are skipped) plus the
+    meshes of ``mesh_dir``, split by object (a seeded permutation; a
+    fraction ``heldout_frac`` of each source held out)."""
+    if procedural not in PROCEDURAL:
+        raise ValueError(f"unknown procedural source {procedural!r} (known: {', '.join(PROCEDURAL)})")
     rng = np.random.default_rng(seed)
     seeds = rng.choice(10**5, size=n_procedural, replace=False)
-    procs = [procedural_shape(int(s), grid) for s in seeds]
+    make = procedural_shape if procedural == "small" else full_shape
+    procs = [sh for sh in (make(int(s), grid) for s in seeds) if sh.vox.any()]
     meshes, skipped = mesh_shapes(mesh_dir, grid, mesh_extent, mesh_max_cells) if mesh_dir else ([], [])
     train, held = [], []
     for group in (procs, meshes):

@@ -43,12 +43,14 @@ from ..layout import brick_layout, cells_of
 from ..runtime import x64
 from ..soft import compile_placements
 from ..solvers.problem import layer_soft, pad_soft, pair_chunks, soft_layer_plan, stack_soft
+from .shapes import PROCEDURAL
 
 DEFAULTS = {
     "grid": 20,
     "crop": [10, 10, 6],
     "data_seed": 0,
     "n_procedural": 240,
+    "procedural": "small",
     "mesh_dir": "../shared/meshes",
     "mesh_extent": 6,
     "mesh_max_cells": 90,
@@ -137,6 +139,7 @@ def load_config(path: str, **overrides) -> dict:
             isinstance(c, int) and 8 <= c <= cfg["grid"] for c in cfg["crop"][:2]) and 1 <= cfg["crop"][2] <= cfg["grid"]):
         raise ConfigError(f"{path}: crop must be [cx, cy, cz] with 8 <= cx, cy <= grid and 1 <= cz <= grid")
     for k, allowed in (("subset_base", ("strict", "filled")), ("share_scope", ("all", "subset")),
+                       ("procedural", PROCEDURAL),
                        ("random_pool", ("span", "valid")),
                         ("lr_schedule", ("constant", "cosine"))):
         if cfg[k] not in allowed:
@@ -157,10 +160,11 @@ def load_config(path: str, **overrides) -> dict:
 
 
 @functools.lru_cache(maxsize=4)
-def _dataset(n_procedural, mesh_dir, seed, heldout_frac, grid, mesh_extent, mesh_max_cells):
+def _dataset(n_procedural, mesh_dir, seed, heldout_frac, grid, mesh_extent, mesh_max_cells, procedural):
     from .shapes import build_dataset
 
-    return build_dataset(n_procedural, mesh_dir, seed, heldout_frac, grid, mesh_extent, mesh_max_cells)
+    return build_dataset(n_procedural, mesh_dir, seed, heldout_frac, grid, mesh_extent, mesh_max_cells,
+                         procedural)
 
 
 def dataset(cfg: dict, validation: bool = False):
@@ -171,7 +175,7 @@ def dataset(cfg: dict, validation: bool = False):
     shapes into a validation set for tuning; training always runs on the
     train part of this three-way split."""
     tr, he, _ = _dataset(cfg["n_procedural"], cfg["mesh_dir"], cfg["data_seed"], cfg["heldout_frac"],
-                         cfg["grid"], cfg["mesh_extent"], cfg["mesh_max_cells"])
+                         cfg["grid"], cfg["mesh_extent"], cfg["mesh_max_cells"], cfg["procedural"])
     val_idx = set(np.random.default_rng(cfg["data_seed"] + 2).permutation(len(tr))[: cfg["val_count"]].tolist())
     train = [s for i, s in enumerate(tr) if i not in val_idx]
     val = [s for i, s in enumerate(tr) if i in val_idx]
