@@ -4,10 +4,12 @@
 #
 # Usage (on the machine with the GPU, from the repository root):
 #   OUT=DIR bash benchmarks/gpu.sh [STEPS]
-# STEPS: any of env small rate shard ahead loss batch (default: env shard,
+# STEPS: any of env small rate shard ahead loss batch train (default: env shard,
 # about 9 minutes: one device call). The steps' defaults fit two calls:
 #   bash benchmarks/gpu.sh env shard             # ~510 s: JAX first run, warm run, HiGHS on every core
 #   bash benchmarks/gpu.sh env small loss batch  # ~300 s (add rate: ~90 s more)
+# train: benchmarks/train_step.py on configs/full_scale.json (20^3 shapes, the layered
+# loss; TRAIN_MESH_DIR, default none: procedural shapes only), 4 steps (TRAIN_S, 300 s).
 # ahead: two first runs of the shard, shapes compiled one after the other
 # (STABLELEGO_COMPILE_AHEAD=0), then ahead in threads (the default); ~200 s.
 # HiGHS on the shard took 272 s on 16 cores of an H200 machine (session 44),
@@ -120,6 +122,13 @@ batch)
     timeout "${BATCH_S:-50}" $PY benchmarks/loss_scale.py --mesh "$MESH" --placements 500 --batch 32 --json \
         >"$R/batch32.json" 2>"$R/batch32.err"
     say "  exit $?: $(cat "$R/batch32.json")"
+    pack
+    ;;
+train)
+    say "train_step full_scale, 4 steps (limit ${TRAIN_S:-300} s)"
+    timeout "${TRAIN_S:-300}" $PY benchmarks/train_step.py --config stablelego_jax/train/configs/full_scale.json \
+        --steps 4 --mesh-dir "${TRAIN_MESH_DIR:-none}" --json >"$R/train_full.json" 2>"$R/train_full.err"
+    say "  exit $?: $(cat "$R/train_full.json"; tail -n 4 "$R/train_full.err")"
     pack
     ;;
 *)

@@ -1,7 +1,7 @@
 """Compile time and time per step of the generator's training step.
 
     python benchmarks/train_step.py [--config stablelego_jax/train/configs/default.json]
-        [--steps 12] [--lam 1000] [--json]
+        [--steps 12] [--lam 1000] [--mesh-dir DIR|none] [--json]
 
 Builds the training data of the config (``stablelego_jax.train.train.dataset``),
 then runs the training loop's own step (``make_fns``: forward pass, subsets
@@ -62,11 +62,15 @@ def main(argv=None) -> int:
     ap.add_argument("--config", default=os.path.join(REPO, "stablelego_jax", "train", "configs", "default.json"))
     ap.add_argument("--steps", type=int, default=12, help="steps to run (at least 2)")
     ap.add_argument("--lam", type=float, default=1000.0, help="weight of the stability term")
+    ap.add_argument("--mesh-dir", default=None,
+                    help="the config's mesh_dir instead (none: procedural shapes only), e.g. on another machine")
     ap.add_argument("--json", action="store_true", help="print one JSON object")
     a = ap.parse_args(argv)
     if a.steps < 2:
         ap.error("--steps must be at least 2")
-    cfg = T.load_config(a.config)
+    # "" (not None, which load_config ignores as an override): no mesh folder
+    over = {} if a.mesh_dir is None else {"mesh_dir": "" if a.mesh_dir == "none" else a.mesh_dir}
+    cfg = T.load_config(a.config, **over)
     out = dict(config=os.path.relpath(a.config, REPO), steps=a.steps, lam=a.lam, **measure(cfg, a.steps, a.lam))
     out["peak_mb"] = round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, 1)
     if a.json:
