@@ -131,13 +131,12 @@ def load_config(path: str, **overrides) -> dict:
               "eval_every", "log_every"):
         if cfg[k] < 1:
             raise ConfigError(f"{path}: config key {k!r} must be >= 1, got {cfg[k]}")
-    if cfg["layers"] != 0 and not (isinstance(cfg["crop"], list) and len(cfg["crop"]) == 3
-                                   and isinstance(cfg["crop"][2], int) and cfg["layers"] >= cfg["crop"][2]):
-        raise ConfigError(f"{path}: config key 'layers' must be 0 (dense) or at least the crop's height, "
-                          f"got {cfg['layers']} for crop {cfg['crop']}")
     if not (isinstance(cfg["crop"], list) and len(cfg["crop"]) == 3 and all(
             isinstance(c, int) and 8 <= c <= cfg["grid"] for c in cfg["crop"][:2]) and 1 <= cfg["crop"][2] <= cfg["grid"]):
         raise ConfigError(f"{path}: crop must be [cx, cy, cz] with 8 <= cx, cy <= grid and 1 <= cz <= grid")
+    if cfg["layers"] != 0 and cfg["layers"] < cfg["crop"][2]:
+        raise ConfigError(f"{path}: config key 'layers' must be 0 (dense) or at least the crop's height, "
+                          f"got {cfg['layers']} for crop {cfg['crop']}")
     for k, allowed in (("subset_base", ("strict", "filled")), ("share_scope", ("all", "subset")),
                        ("procedural", PROCEDURAL),
                        ("random_pool", ("span", "valid")),
