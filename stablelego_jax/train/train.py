@@ -42,7 +42,7 @@ from ..files import atomic_write, atomic_write_text
 from ..layout import brick_layout, cells_of
 from ..runtime import x64
 from ..soft import compile_placements
-from ..solvers.problem import layer_soft, pad_soft, pair_chunks, soft_layer_plan, stack_soft
+from ..solvers.problem import cut_layers, layer_soft, pad_soft, pair_chunks, soft_layer_plan, stack_soft
 from .shapes import PROCEDURAL
 
 DEFAULTS = {
@@ -301,11 +301,18 @@ def _fits_layers(prob, cfg: dict) -> bool:
 
 def batch_subsets(p: np.ndarray, valid: np.ndarray, cfg: dict, rng: np.random.Generator, span=None) -> Subset:
     """:func:`select_subset` of each shape of a batch (p, valid, span:
-    (B, X, Y, Z, K)), stacked into one Subset of (B, ...) arrays."""
+    (B, X, Y, Z, K)), stacked into one Subset of (B, ...) arrays; layered
+    (``layers`` > 0), ``prob.cut`` is one (L,) array for the whole batch:
+    each layer's most used slots over its shapes."""
 
     sub = [select_subset(p[j], valid[j], cfg, rng, None if span is None else span[j]) for j in range(len(p))]
-    return Subset(*(np.stack([getattr(s, f) for s in sub]) for f in ("fi", "mask", "inc")),
-                  stack_soft([s.prob for s in sub]))
+    prob = stack_soft([s.prob for s in sub])
+    if cfg["layers"]:
+        # each layer factored at the most slots any shape of the batch uses there (one
+        # (L,) cut for the batch, so one branch runs; a cut per shape would run every
+        # branch under vmap): layers above every shape's height cost nothing
+        prob = prob._replace(cut=np.max([cut_layers(s.prob).cut for s in sub], axis=0).astype(np.int32))
+    return Subset(*(np.stack([getattr(s, f) for s in sub]) for f in ("fi", "mask", "inc")), prob)
 
 
 # --------------------------------------------------------------------------
@@ -420,7 +427,10 @@ def _model_fns(key: str):
         else:
             wts = net.existence_weights(p_g, cov, cfg["share_floor"])
             w = jnp.take_along_axis(wts.reshape(B, -1), fi, axis=1) * mask
-        rep = jax.vmap(lambda wi, pi: soft_report(wi, None, pi, opts=opts))(w, prob)
+        # a layered batch's cut ((L,), :func:`batch_subsets`) is the batch's, not batched
+        cut = prob.cut
+        rep = jax.vmap(lambda wi, pi: soft_report(wi, None, pi._replace(cut=cut), opts=opts))(
+            w, prob._replace(cut=None))
         # a problem whose interior-point solve did not converge contributes nothing
         stab = jnp.where(rep.converged, rep.brick_loss.sum(1), 0.0).mean()
         return fid, binar, stab, rep.converged.mean()
