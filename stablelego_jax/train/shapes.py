@@ -10,7 +10,7 @@ nothing below it must be held by a brick that reaches a supported cell.
 *Full*: shapes of the whole grid (:func:`full_shape`: blobs, stacked boxes,
 balls, arches, stems with caps or arms; hundreds to thousands of cells),
 for training at full scale with the layered factorisation (the config's
-``layers``), a CPU step costing tens of seconds (BENCHMARKS.md).
+``layers``), a CPU step of 8 shapes costing minutes (BENCHMARKS.md).
 
 Every shape is one *object* (a procedural seed or a mesh file); the split
 into train and held-out is over objects, seeded.
