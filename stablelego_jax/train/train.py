@@ -42,7 +42,7 @@ from ..files import atomic_write, atomic_write_text
 from ..layout import brick_layout, cells_of
 from ..runtime import x64
 from ..soft import compile_placements
-from ..solvers.problem import cut_layers, layer_soft, pad_soft, pair_chunks, soft_layer_plan, stack_soft
+from ..solvers.problem import cut_layers, layer_soft, pad_soft, soft_layer_plan, stack_soft
 from .shapes import PROCEDURAL
 
 DEFAULTS = {
@@ -272,8 +272,10 @@ def select_subset(p: np.ndarray, valid: np.ndarray, cfg: dict, rng: np.random.Ge
         ucells, cell_id = np.unique(cells, axis=0, return_inverse=True)
         prob = compile_placements(pos, size, MASS[k])
         if (prob.col_kind.shape[0] <= cfg["m_pad"] and prob.group.shape[1] <= cfg["p_pad"]
-                and len(ucells) <= cfg["c_pad"] and _fits_layers(prob, cfg)):
-            break
+                and len(ucells) <= cfg["c_pad"]):
+            prob = _layered(prob, cfg) if cfg["layers"] else prob
+            if prob is not None:
+                break
         chosen = chosen[: max(len(chosen) - 4, 1)]
     n = len(chosen)
     fi = np.zeros(cfg["n_pad"], np.int64)
@@ -282,21 +284,19 @@ def select_subset(p: np.ndarray, valid: np.ndarray, cfg: dict, rng: np.random.Ge
     mask[:n] = True
     inc = np.zeros((cfg["c_pad"], cfg["n_pad"]))
     inc[np.ravel(cell_id), owner] = 1.0
-    if cfg["layers"]:
-        prob = pad_soft(layer_soft(prob, cfg["layers"], cfg["slots"]), cfg["n_pad"], cfg["m_pad"], cfg["p_pad"],
-                        c_pad=cfg["chunk_pad"])
-    else:
-        prob = pad_soft(prob, cfg["n_pad"], cfg["m_pad"], cfg["p_pad"])
-    return Subset(fi, mask, inc, prob)
+    # chunk_pad pads a layered problem's column chunks (a dense one has none)
+    return Subset(fi, mask, inc, pad_soft(prob, cfg["n_pad"], cfg["m_pad"], cfg["p_pad"], c_pad=cfg["chunk_pad"]))
 
 
-def _fits_layers(prob, cfg: dict) -> bool:
-    """Whether a subset's problem fits the layered shape of ``cfg`` (always
-    when dense, ``layers`` 0)."""
-    if not cfg["layers"]:
-        return True
+def _layered(prob, cfg: dict):
+    """A subset's problem numbered layer by layer in ``cfg``'s ``layers`` x
+    ``slots`` (:func:`~stablelego_jax.solvers.problem.layer_soft`), or None
+    where it needs more layers, slots per layer or column chunks than that."""
     L, B = soft_layer_plan(prob)
-    return L <= cfg["layers"] and B <= cfg["slots"] and len(pair_chunks(prob)) <= cfg["chunk_pad"]
+    if L > cfg["layers"] or B > cfg["slots"]:
+        return None
+    prob = layer_soft(prob, cfg["layers"], cfg["slots"])
+    return prob if len(prob.chunk) <= cfg["chunk_pad"] else None
 
 
 def batch_subsets(p: np.ndarray, valid: np.ndarray, cfg: dict, rng: np.random.Generator, span=None) -> Subset:
