@@ -73,7 +73,8 @@ __all__ = ["find_layouts", "read_results", "ScoreStats", "iter_analyses", "analy
            "auto_split", "ACCELERATOR_SPEEDUP", "ACCELERATOR_COMPILE_S", "CPU_CACHE_BYTES", "CPU_BUDGET_BYTES",
            "device_budget", "default_batch", "ACCELERATOR_BATCH", "accelerator_compile_s",
            "worker_order", "next_unit", "POOL_DEPTH", "Workers", "jax_pool_size", "exact_parts", "pack_items",
-           "PACK_MOST", "solve_unit", "compile_ahead", "ahead_specs", "ahead_threads", "AHEAD_THREADS", "batch_specs"]
+           "PACK_MOST", "column_runs", "solve_unit", "compile_ahead", "ahead_specs", "ahead_threads", "AHEAD_THREADS",
+           "batch_specs"]
 
 LAYOUT_EXTS = (".json", ".txt", ".ldr")
 # files that sit beside StableLego layouts but are not layouts
@@ -700,15 +701,80 @@ def solve_units(loaded, solver: str, batch: int, n_dev: int, merge: bool = True,
         groups = merged
     units = []
     for key in sorted(groups):
-        items = groups[key]
-        m_pad, p_pad, c_pad, bsz, _ = _pieces(items, key, batch, n_dev, crows, cpu)
-        if solver == "jax" and bsz == 1 and key[0] == "dense" and key[1] <= ipm.CUT_MIN:
-            units += [SolveUnit(key, m_pad, p_pad, 1, p, c_pad, pack=len(p) > 1)
-                      for p in pack_items(items, key[1], m_pad, c_pad, crows)]
-            continue
-        units += [SolveUnit(key, m_pad, p_pad, bsz, items[b0: b0 + bsz], c_pad)
-                  for b0 in range(0, len(items), bsz)]
+        runs = [groups[key]]
+        if solver == "jax" and cpu:
+            runs = column_runs(groups[key], key, batch, n_dev, crows, ready, cpu)
+        for items in runs:
+            m_pad, p_pad, c_pad, bsz, _ = _pieces(items, key, batch, n_dev, crows, cpu)
+            if _packs(solver, key, bsz):
+                units += [SolveUnit(key, m_pad, p_pad, 1, p, c_pad, pack=len(p) > 1)
+                          for p in pack_items(items, key[1], m_pad, c_pad, crows)]
+                continue
+            units += [SolveUnit(key, m_pad, p_pad, bsz, items[b0: b0 + bsz], c_pad)
+                      for b0 in range(0, len(items), bsz)]
     return units
+
+
+def _packs(solver: str, key: tuple, bsz: int) -> bool:
+    """Whether a bucket's layouts are packed several to a problem
+    (:func:`pack_items`): the interior point's dense buckets of at most
+    :data:`~stablelego_jax.solvers.ipm.CUT_MIN` bricks, solved one problem at a time."""
+    return solver == "jax" and bsz == 1 and key[0] == "dense" and key[1] <= ipm.CUT_MIN
+
+
+def column_runs(items: list, key: tuple, batch: int, n_dev: int, crows: dict, ready=None,
+                cpu: bool | None = None) -> list[list]:
+    """``items`` ((i, layout, ForceModel)) of one interior-point bucket
+    ``key``, cut into runs of consecutive column rungs (:func:`~stablelego_jax.solvers.problem.rung`
+    of each layout's columns), each run padded to its own largest column
+    count, where that lowers the estimated time; one run (the whole bucket
+    padded to its largest layout, as before) otherwise. The cut with the
+    least estimated seconds, by dynamic programming over the rungs: a run's
+    solves (layouts, or packs where the bucket packs them, :func:`_packs`)
+    times :func:`~stablelego_jax.solvers.problem.plan_seconds` at its
+    padding, plus a compile per batch size
+    (:func:`~stablelego_jax.solvers.problem.compile_seconds`), or a load
+    (:data:`~stablelego_jax.solvers.problem.LOAD_S`) where ``ready`` (as
+    :func:`solve_units`) says that shape is compiled already. Every
+    iteration of the interior point passes over every padded column: on
+    the small set, 107 layouts of at most 224 columns in dense 16 solved
+    in 3.0-3.2 ms each at 224 columns and 5.7-6.4 ms at the bucket's 872
+    (BENCHMARKS.md, issue 17, session 52), so a run large enough to pay
+    for a second compile is cut; a short run is not."""
+    by_rung: dict = {}
+    for it in items:
+        by_rung.setdefault(rung(it[2].m, MIN_COLUMNS), []).append(it)
+    rungs = sorted(by_rung)
+    if len(rungs) < 2:
+        return [list(items)]
+    cache: dict = {}
+
+    def cost(i: int, j: int) -> float:
+        """Estimated seconds of the run of rungs i..j-1."""
+        if (i, j) not in cache:
+            run = [it for r in rungs[i:j] for it in by_rung[r]]
+            m_pad, p_pad, c_pad, bsz, sizes = _pieces(run, key, batch, n_dev, crows, cpu)
+            if _packs("jax", key, bsz):
+                solves = len(pack_items(run, key[1], m_pad, c_pad, crows))
+            else:
+                solves = sum(_rungs(bsz, len(run), n_dev))
+            have = ready is not None and ready(key, m_pad, p_pad, c_pad, sizes, run[0][2])
+            cache[i, j] = solves * plan_seconds(key, m_pad) + len(sizes) * (LOAD_S if have else compile_seconds(key))
+        return cache[i, j]
+
+    best, start = [0.0], []
+    for j in range(1, len(rungs) + 1):
+        v, i = min((best[i] + cost(i, j), i) for i in range(j))  # ties: the longer run
+        best.append(v)
+        start.append(i)
+    runs, j = [], len(rungs)
+    while j > 0:
+        i = start[j - 1]
+        runs.append([it for r in rungs[i:j] for it in by_rung[r]])
+        j = i
+    if len(runs) == 1:
+        return [list(items)]  # the bucket's own order
+    return runs[::-1]
 
 
 #: Most layouts in one pack (:func:`pack_items`).

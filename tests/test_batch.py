@@ -677,6 +677,54 @@ def test_pack_items_fill_the_bucket_and_cover_every_layout_once():
     assert len(packs) < 40  # the 1-brick layouts share packs
 
 
+def _column_items(counts, seed=0):
+    """Fake compiled layouts of a dense 16 bucket: ``counts`` {most columns: how many}."""
+    from types import SimpleNamespace
+
+    rng = np.random.default_rng(seed)
+    items = []
+    for top, k in counts.items():
+        for _ in range(k):
+            m = int(rng.integers(top // 2 + 1, top + 1))
+            items.append((len(items), None, SimpleNamespace(n=int(rng.integers(9, 17)), m=m, group=np.zeros((16, 8)))))
+    order = rng.permutation(len(items))
+    return [items[i] for i in order], {it[0]: 2 + it[2].m // 40 for it in items}
+
+
+def test_column_runs_cut_a_large_bucket_by_columns_and_keep_a_small_one_whole():
+    """Every iteration passes over every padded column, so a bucket of many
+    narrow layouts and a few wide ones is cut into runs padded to their own
+    columns when the estimated solve time saved pays for the second
+    compile; a short run is left whole (one compile), in its own order."""
+    from stablelego_jax.batch import column_runs
+    from stablelego_jax.solvers.problem import MIN_COLUMNS, rung
+
+    key = ("dense", 16)
+    items, crows = _column_items({200: 3000, 1000: 20})
+    runs = column_runs(items, key, 64, 1, crows, cpu=True)
+    assert len(runs) >= 2
+    assert sorted(it[0] for r in runs for it in r) == sorted(it[0] for it in items)
+    tops = [max(rung(it[2].m, MIN_COLUMNS) for it in r) for r in runs]
+    lows = [min(rung(it[2].m, MIN_COLUMNS) for it in r) for r in runs]
+    assert tops == sorted(tops) and all(hi < lo for hi, lo in zip(tops, lows[1:]))  # consecutive rungs
+    assert tops[0] <= rung(200, MIN_COLUMNS) < tops[-1]
+    few, crows_few = _column_items({200: 12, 1000: 2})
+    assert column_runs(few, key, 64, 1, crows_few, cpu=True) == [few]
+
+
+def test_column_runs_take_a_compiled_shape_where_it_costs_only_a_load():
+    """A narrow shape compiled already (this process or the disk cache)
+    costs a load, not a compile: a bucket too short to pay for a compile
+    is still cut where its narrow layouts' shape is ready."""
+    from stablelego_jax.batch import column_runs
+
+    key = ("dense", 16)
+    items, crows = _column_items({200: 200, 1000: 2})
+    assert len(column_runs(items, key, 64, 1, crows, cpu=True)) == 1
+    runs = column_runs(items, key, 64, 1, crows, ready=lambda k, m_pad, *a: m_pad <= 224, cpu=True)
+    assert [len(r) for r in runs] == [200, 2]
+
+
 def test_packed_small_layouts_get_the_answers_they_get_alone(monkeypatch):
     """Small layouts of a dense bucket are solved several to a problem
     (block diagonal); each gets the scores it gets solved alone."""
