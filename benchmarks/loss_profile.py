@@ -23,13 +23,10 @@ from __future__ import annotations
 
 import argparse
 import collections
-import glob
-import gzip
 import json
 import os
 import re
 import sys
-import tempfile
 import time
 
 sys.path.insert(0, os.path.dirname(__file__))
@@ -41,6 +38,7 @@ import numpy as np  # noqa: E402
 
 from stablelego_jax.blas import pool_threads  # noqa: E402
 from stablelego_jax.solvers.problem import plan_soft  # noqa: E402
+from xla_trace import self_times, traced_events  # noqa: E402
 
 
 def group(op_name: str) -> str:
@@ -50,29 +48,7 @@ def group(op_name: str) -> str:
         return "inner loops"
     if "while/body" in op_name:
         return "iteration"
-    return "outside" if op_name else "runtime"
-
-
-def self_times(events):
-    """{name: (self microseconds, count)} of complete events, nesting per thread."""
-    by_thread = collections.defaultdict(list)
-    for e in events:
-        if e.get("ph") == "X" and "dur" in e:
-            by_thread[(e.get("pid"), e.get("tid"))].append(e)
-    out = collections.defaultdict(lambda: [0.0, 0])
-    for es in by_thread.values():
-        es.sort(key=lambda e: (e["ts"], -e["dur"]))
-        stack, child = [], collections.Counter()
-        for i, e in enumerate(es):
-            while stack and es[stack[-1]]["ts"] + es[stack[-1]]["dur"] <= e["ts"]:
-                stack.pop()
-            if stack:
-                child[stack[-1]] += e["dur"]
-            stack.append(i)
-        for i, e in enumerate(es):
-            out[e["name"]][0] += e["dur"] - child[i]
-            out[e["name"]][1] += 1
-    return out
+    return "outside"
 
 
 def main(argv=None) -> int:
@@ -96,13 +72,7 @@ def main(argv=None) -> int:
     jax.block_until_ready(vg(W, LD, prob))
     run_s = time.perf_counter() - t0
 
-    with tempfile.TemporaryDirectory() as d:
-        with jax.profiler.trace(d, create_perfetto_trace=True):
-            jax.block_until_ready(vg(W, LD, prob))
-        path = glob.glob(os.path.join(d, "**", "*.trace.json.gz"), recursive=True)[0]
-        with gzip.open(path) as fh:
-            events = json.load(fh)
-    events = events["traceEvents"] if isinstance(events, dict) else events
+    events = traced_events(lambda: jax.block_until_ready(vg(W, LD, prob)))
 
     hlo = vg.as_text()
     names, shapes = {}, {}

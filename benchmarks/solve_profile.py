@@ -1,5 +1,6 @@
 """Where the interior point's iteration goes for one bucket of small layouts,
-kernel by kernel (issue 17, item 3: a profile of the verdict solve).
+kernel by kernel (issue 17, item 3: a profile of the verdict solve; ``xla_trace.py``
+reads the trace, as for ``loss_profile.py``).
 
 Usage:
   python benchmarks/solve_profile.py [--inputs benchmarks/results/small500] [--key dense,40]
@@ -21,40 +22,18 @@ not runs. One OpenBLAS thread; run nothing else.
 from __future__ import annotations
 
 import argparse
-import collections
 import dataclasses
-import glob
-import gzip
 import json
 import os
 import sys
-import tempfile
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+sys.path.insert(0, os.path.dirname(__file__))
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
 
+from xla_trace import self_times, traced_events  # noqa: E402
+
 HERE = os.path.dirname(os.path.abspath(__file__))
-
-
-def self_times(events: list) -> tuple[collections.Counter, collections.Counter]:
-    """(self microseconds, calls) of each complete event name, per thread:
-    an event's duration less its nested events' (the trace's own nesting)."""
-    xs = sorted((e for e in events if e.get("ph") == "X" and not e["name"].startswith("$")),
-                key=lambda e: (e.get("pid"), e.get("tid"), e["ts"], -e.get("dur", 0)))
-    own: collections.Counter = collections.Counter()
-    calls: collections.Counter = collections.Counter()
-    stack: list = []
-    for e in xs:
-        while stack and (stack[-1][0] != (e.get("pid"), e.get("tid"))
-                         or e["ts"] >= stack[-1][1]["ts"] + stack[-1][1].get("dur", 0)):
-            stack.pop()
-        d = e.get("dur", 0)
-        own[e["name"]] += d
-        calls[e["name"]] += 1
-        if stack:
-            own[stack[-1][1]["name"]] -= d
-        stack.append(((e.get("pid"), e.get("tid")), e))
-    return own, calls
 
 
 def main() -> None:
@@ -66,8 +45,6 @@ def main() -> None:
     ap.add_argument("--top", type=int, default=30)
     ap.add_argument("--json")
     args = ap.parse_args()
-
-    import jax
 
     from stablelego_jax import batch as B
     from stablelego_jax.formats import rows
@@ -99,20 +76,17 @@ def main() -> None:
         return st
 
     solve_all()  # compile, or load
-    with tempfile.TemporaryDirectory() as d:
-        with jax.profiler.trace(d, create_perfetto_trace=True):
-            st = solve_all()
-        trace = glob.glob(os.path.join(d, "**", "*.trace.json.gz"), recursive=True)
-        with gzip.open(trace[0]) as fh:
-            data = json.load(fh)
-    events = data["traceEvents"] if isinstance(data, dict) else data
-    own, calls = self_times(events)
-    iters = sum(c for k, c in calls.items() if k.startswith("cholesky")) or 1
+    stats = []
+    times = self_times(traced_events(lambda: stats.append(solve_all())))
+    st = stats[0]
+    times = {k: v for k, v in times.items() if not k.startswith("$")}  # Python frames
+    iters = sum(c for k, (_, c) in times.items() if k.startswith("cholesky")) or 1
     skip = ("ThunkExecutor::Execute (wait", "np.asarray", "PjitFunction", "CommonPjRt", "Wait for")
-    rows_out = [(k, own[k] / iters, calls[k] / iters) for k, _ in own.most_common() if not k.startswith(skip)]
+    rows_out = sorted(((k, us / iters, c / iters) for k, (us, c) in times.items() if not k.startswith(skip)),
+                      key=lambda r: -r[1])
     out = dict(key=list(key), m_pad=units[0].m_pad, units=len(units), layouts=sum(len(u.items) for u in units),
                iterations=iters, solve_ms_per_iteration=1e3 * st.solve_s / iters,
-               thunk_events_per_iteration=sum(calls.values()) / iters,
+               thunk_events_per_iteration=sum(c for _, c in times.values()) / iters,
                kernels=[dict(name=k, us_per_iteration=round(t, 2), calls_per_iteration=round(c, 2))
                         for k, t, c in rows_out[: args.top]])
     print(f"bucket {key}, {out['m_pad']} columns: {out['layouts']} layouts in {len(units)} units, "
