@@ -61,9 +61,15 @@ def equilibrium_t(coef, col_brick, y):
     xp = _xp(y, coef)
     yp = xp.concatenate([y, xp.zeros((1, 6), y.dtype)])
     # one gather of both slots (m, 2, 6): XLA's CPU code for two separate
-    # gathers fused with their sums runs 6x slower (the same numbers)
-    s = (coef * yp[col_brick]).sum(-1)
-    return s[:, 0] + s[:, 1]
+    # gathers fused with their sums runs 6x slower (the same numbers); the 12
+    # products summed as one chain of adds, not a reduction over the last axis,
+    # which XLA's CPU compiler hands to YNNPACK: 2.7-3.1x slower at 1096-262400
+    # columns (BENCHMARKS.md, issue 17, session 52)
+    p = coef * yp[col_brick]
+    s = p[:, 0, 0] + p[:, 1, 0]
+    for k in range(1, 6):
+        s = s + p[:, 0, k] + p[:, 1, k]
+    return s
 
 
 def residual(model, f):
