@@ -245,7 +245,9 @@ def block_solve(C, G, r):
     def fwd(t, inp):  # t = G[l-1]' y[l-1], carried: no shifted copy of G
         Cl, Gl, rl = inp
         y = _tri(Cl, rl - t, 0)
-        return Gl.T @ y, y
+        # y' G, not G' y: XLA's CPU code transposed the (k, k) block into a copy for
+        # G' y on every layer of every solve (768 rows: 1.47 ms a product against 0.40)
+        return y @ Gl, y
 
     _, y = jax.lax.scan(fwd, jnp.zeros_like(r[0]), (C, G, r))
 
