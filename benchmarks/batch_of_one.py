@@ -54,7 +54,7 @@ def main() -> None:
         raise SystemExit(f"{a.inputs}: no layout files (make one with benchmarks/make_shard.py)")
     loaded = [(i, lay, compile_layout(lay)) for i, lay in enumerate(map(load_layout, files))]
     first: dict = {}
-    for u in batch.solve_units(loaded, "jax", 64, 1, True):
+    for u in batch.solve_units(loaded, 64, 1, True):
         first.setdefault(u.key, u)
     params, opts = Params(), ipm.IPMOptions()
 

@@ -54,7 +54,7 @@ def main() -> None:
     lays = [load_layout(f) for f in files]
     params, opts = Params(), ipm.IPMOptions()
     loaded = [(i, lay, compile_layout(lay, params)) for i, lay in enumerate(lays)]
-    units = solve_units(loaded, "jax", args.batch, 1, bool(args.merge), ready=compiled_ready(params, opts, 1))
+    units = solve_units(loaded, args.batch, 1, bool(args.merge), ready=compiled_ready(params, opts, 1))
     unit_of = {it[0]: u for u, unit in enumerate(units) for it in unit.items}
     runs = []
     for run in ("first", "warm"):

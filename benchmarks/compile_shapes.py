@@ -64,7 +64,7 @@ def main() -> None:
     t2 = time.perf_counter()
     loaded = [(i, lay, compile_layout(lay)) for i, lay in enumerate(lays)]
     t3 = time.perf_counter()
-    units = batch.solve_units(loaded, "jax", 64, 1, True)
+    units = batch.solve_units(loaded, 64, 1, True)
     t4 = time.perf_counter()
     out = dict(files=len(files), imports_s=round(t1 - t0, 2), read_s=round(t2 - t1, 2),
                force_models_s=round(t3 - t2, 2), plan_s=round(t4 - t3, 2), units=len(units),

@@ -8,7 +8,7 @@ engine's ``compiled`` is wrapped: the resident memory it adds when it
 compiles (traces, exports, compiles or loads a new shape) is summed apart
 from what the rest of the run adds (solving, scoring, output).
 
-    python benchmarks/executable_growth.py [--solver jax|admm] [--limit K] [--n 500]
+    python benchmarks/executable_growth.py [--solver jax|auto] [--limit K] [--n 500]
         [--dir benchmarks/results/small500] [--json OUT] [--keep-tracing-caches]
 
 ``--limit K``: hold at most K executables (default: the library's 32).
@@ -45,7 +45,7 @@ def main() -> None:
     ap.add_argument("--limit", type=int, default=0, help="executables held (0: the library's default)")
     ap.add_argument("--n", type=int, default=500)
     ap.add_argument("--dir", default=os.path.join(HERE, "results", "small500"))
-    ap.add_argument("--solver", default="jax", choices=["jax", "admm"])
+    ap.add_argument("--solver", default="jax", choices=["jax", "auto"])
     ap.add_argument("--json", help="write the rows and the RSS split here")
     ap.add_argument("--keep-tracing-caches", action="store_true",
                     help="do not empty JAX's tracing caches after each compile (as before 2026-11-24)")

@@ -52,7 +52,7 @@ def main() -> None:
           f"{batch.accelerator_compile_s()[0]:.1f} and {batch.accelerator_compile_s()[1]:.2f} CPU-core s")
     for cpu in (True, False):
         for bsz in a.batch:
-            units = batch.solve_units(loaded, "jax", bsz, 1, True, cpu=cpu)
+            units = batch.solve_units(loaded, bsz, 1, True, cpu=cpu)
             shapes = {(u.shape, batch_rung(len(u.items), 1, u.bsz)) for u in units}
             padded = sum(batch_rung(len(u.items), 1, u.bsz) * plan_seconds(u.key, u.m_pad) for u in units)
             est = "" if cpu else f", device estimate {padded / a.speedup + len(shapes) * a.compile_s:.0f} s"

@@ -51,7 +51,7 @@ def main() -> None:
     from stablelego_jax.solvers import ipm
     from stablelego_jax.solvers.blocks import block_cholesky, block_solve
     from stablelego_jax.solvers.newton import reduced_matrix
-    from stablelego_jax.solvers.problem import layer_gram, operators, plan_problem, solve_plan, stack_problems
+    from stablelego_jax.solvers.problem import gram_plan, operators, plan_problem, solve_plan, stack_problems
 
     if a.file:
         models = [compile_layout(load_layout(a.file))]
@@ -98,8 +98,9 @@ def main() -> None:
         return asm(e, e, jnp.ones(n), jnp.ones(6 * n))
 
     def gram(p):
-        _, _, coef, _, _ = operators(p, Params())
-        return layer_gram(p, coef).blocks(weights(p))
+        _, _, coef, g, _ = operators(p, Params())
+        L = 1 if p.layers is None else p.layers.shape[0]
+        return gram_plan(p.col_brick, coef, g.shape[0], L, p.chunks).blocks(weights(p))
 
     def factor(p):
         D, E = assemble(p)

@@ -105,7 +105,7 @@ def main(argv=None):
 def table(recs, args, wall, t_sheet) -> str:
     ok = [r for r in recs if "error" not in r]
     bad = [r for r in recs if "error" in r]
-    solver = "exact (HiGHS interior point + crossover, torque rows in N stud)" if args.solver == "exact" else "jax (ADMM)"
+    solver = "exact (HiGHS interior point + crossover, torque rows in N stud)" if args.solver == "exact" else "jax (interior point)"
     lines = [
         "## Meshes to bricks (issue 3)",
         "",

@@ -43,7 +43,7 @@ def solve(units, params, opts) -> tuple[dict, float]:
     st = ScoreStats()
     out = {}
     for u in units:
-        for part in solve_unit(u, "jax", params, opts, 1, 0, False, st):
+        for part in solve_unit(u, params, opts, 1, False, st):
             out.update(part)
     return out, st.solve_s
 
@@ -60,7 +60,7 @@ def main() -> None:
         sys.exit(f"error: no layouts in {' '.join(inputs)}")
     params, opts = Params(), ipm.IPMOptions()
     loaded = [(i, lay, compile_layout(lay, params)) for i, lay in enumerate(load_layout(f) for f in files)]
-    packed = [u for u in solve_units(loaded, "jax", 64, 1) if u.pack]
+    packed = [u for u in solve_units(loaded, 64, 1) if u.pack]
     if not packed:
         sys.exit("no packed unit in this plan (packs form in dense buckets of at most "
                  f"{ipm.CUT_MIN} bricks solved one problem at a time)")

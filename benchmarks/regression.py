@@ -8,8 +8,9 @@ Usage:
 ``record`` runs, on the bundled examples and the layouts of
 ``benchmarks/agreement.py`` (``random_family_layout(seed)``, seeds
 0..N-1): the exact and JAX solvers (scores, verdict, weakest brick,
-objective, iterations, forces), the baselines luo and eb (first 60 seeds and
-the examples) and ADMM (examples). It appends, resumes, and runs in chunks
+objective, iterations, forces) and the baselines luo and eb (first 60 seeds
+and the examples; files recorded before version 0.3 also hold ADMM rows,
+which ``compare`` leaves out). It appends, resumes, and runs in chunks
 of fresh processes (``--chunk`` layouts each), so a long record never holds
 hundreds of compiled executables in one process. Run it from each checkout
 (``git worktree add``) into its own file, then ``compare``: the largest
@@ -67,10 +68,6 @@ def _record_chunk(out: str, lo: int, hi: int, examples: bool) -> None:
                     a = analyze_layout(lay, solver="exact", method=m)
                     rec[m] = {"scores": [a.scores.get(k) for k in lay.keys], "stable": a.stable,
                               "weakest": a.weakest, "solvable": a.solvable}
-            if example:
-                a = analyze_layout(lay, solver="admm")
-                rec["admm"] = {"scores": [a.scores[k] for k in lay.keys], "stable": a.stable,
-                               "weakest": a.weakest, "iters": a.iters, "converged": a.converged}
             fh.write(json.dumps(rec) + "\n")
             fh.flush()
 
@@ -95,7 +92,7 @@ def compare(before: str, after: str, tol: float) -> int:
     print(f"layouts compared: {len(common)} ({len(b)} before, {len(a)} after)")
     worst, diffs = {}, []
     for k in common:
-        for s in ("exact", "jax", "luo", "eb", "admm"):
+        for s in ("exact", "jax", "luo", "eb"):
             if s not in b[k] or s not in a[k]:
                 continue
             x, y = b[k][s], a[k][s]

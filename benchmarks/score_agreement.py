@@ -55,7 +55,7 @@ def compare(ex: dict, other: dict) -> tuple[dict, list]:
         failing=sum(failing(ex[f]) == failing(other[f]) for f in files),
         per_brick=sum(d <= 1e-3 for d in diff.values()),
         converged=sum(bool(other[f].get("converged", True)) for f in files),
-        by_solver={s: sum(other[f].get("solver") == s for f in files) for s in ("jax", "exact", "admm")},
+        by_solver={s: sum(other[f].get("solver") == s for f in files) for s in ("jax", "exact")},
     )
     if files:  # each layout's largest per-brick difference: the tolerance met on 50/90/99/100% of layouts
         q = np.quantile(list(diff.values()), [0.5, 0.9, 0.99, 1.0])

@@ -60,7 +60,7 @@ def main() -> None:
     params, opts = Params(), ipm.IPMOptions()
     loaded = [(i, lay, compile_layout(lay, params))
               for i, lay in enumerate(rows.load_source(p, None, None, None, False, {}) for p in paths)]
-    units = [u for u in B.solve_units(loaded, "jax", B.default_batch(), 1, True) if u.key == key][: args.units]
+    units = [u for u in B.solve_units(loaded, B.default_batch(), 1, True) if u.key == key][: args.units]
     if not units:
         raise SystemExit(f"no unit of bucket {key} in {args.inputs}")
     if args.m_pad:
@@ -71,7 +71,7 @@ def main() -> None:
     def solve_all():
         st = B.ScoreStats()
         for u in units:
-            for _ in B.solve_unit(u, "jax", params, opts, 1, 0, True, st):
+            for _ in B.solve_unit(u, params, opts, 1, True, st):
                 pass
         return st
 

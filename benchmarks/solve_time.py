@@ -1,12 +1,12 @@
 """Warm JAX solve time per layout, for comparing two versions of the solver
 side by side (issue 20's polish against issue 17's throughput).
 
-Usage: python benchmarks/solve_time.py [INPUT ...] [--every 10] [--repeat 2] [--solver jax|admm] --json OUT
+Usage: python benchmarks/solve_time.py [INPUT ...] [--every 10] [--repeat 2] --json OUT
 
 INPUT: layout files or folders (default: every ``--every``-th layout of the
 500-layout shard of ``benchmarks/make_shard.py``). Per layout, the JAX
-analysis (``analyze_layout(solver=S, fallback=False)``, S the interior
-point "jax" or "admm") runs once to
+analysis (``analyze_layout(solver="jax", fallback=False)``, the interior
+point) runs once to
 compile (or load) its executable and then ``--repeat`` times, timed; the
 row keeps the fastest of those, the iterations and whether it converged.
 Writes one JSON object: the command, machine, date, code version (git
@@ -40,7 +40,6 @@ def main() -> None:
     ap.add_argument("inputs", nargs="*")
     ap.add_argument("--every", type=int, default=10, help="default set: every N-th shard layout")
     ap.add_argument("--repeat", type=int, default=2, help="timed runs per layout (the fastest is kept)")
-    ap.add_argument("--solver", choices=["jax", "admm"], default="jax")
     ap.add_argument("--json", required=True, help="output file")
     args = ap.parse_args()
     if args.inputs:
@@ -53,11 +52,11 @@ def main() -> None:
     rows = []
     for i, f in enumerate(files):
         lay = load_layout(f)
-        analyze_layout(lay, solver=args.solver, fallback=False)  # compile or load
+        analyze_layout(lay, solver="jax", fallback=False)  # compile or load
         best, a = float("inf"), None
         for _ in range(args.repeat):
             t = time.perf_counter()
-            a = analyze_layout(lay, solver=args.solver, fallback=False)
+            a = analyze_layout(lay, solver="jax", fallback=False)
             best = min(best, time.perf_counter() - t)
         rows.append({"file": os.path.relpath(f, ROOT), "n_bricks": lay.n, "solve_s": best, "iters": a.iters,
                      "converged": a.converged})
@@ -67,7 +66,7 @@ def main() -> None:
     out = {
         "command": " ".join([os.path.relpath(sys.argv[0], ROOT)] + sys.argv[1:]),
         "machine": f"{platform.machine()} {os.cpu_count()} cores", "python": platform.python_version(),
-        "date": time.strftime("%Y-%m-%d %H:%M"), "code": head.stdout.strip(), "solver": args.solver,
+        "date": time.strftime("%Y-%m-%d %H:%M"), "code": head.stdout.strip(), "solver": "jax",
         "total_s": sum(r["solve_s"] for r in rows), "iters_total": sum(r["iters"] for r in rows),
         "converged": sum(r["converged"] for r in rows), "rows": rows,
     }

@@ -9,7 +9,7 @@ and ``import stablelego_jax`` stay fast and do not touch JAX)::
     layout    Layout, LayoutError, Library, default_library, make_layout, brick_layout
     model     Params, ForceModel, compile_layout
     soft      SoftProblem, Candidate, candidate_brick, compile_soft, compile_placements, soft_problem
-    solvers   IPMOptions, SolverOptions, solve_exact, pad_soft
+    solvers   IPMOptions, solve_exact, pad_soft
     score     brick_scores
     loss      LossOptions, stability_loss, brick_loss, fail_prob, soft_scores, soft_report, solve_soft
     analysis  Analysis, analyze, analyze_layout
@@ -33,7 +33,7 @@ import importlib
 
 from .blas import one_xla_pool_thread
 
-__version__ = "0.2.0"
+__version__ = "0.3.0"
 
 # before JAX's CPU backend starts: see stablelego_jax.blas
 one_xla_pool_thread()
@@ -64,7 +64,6 @@ _EXPORTS = {
     "compile_placements": "soft",
     "soft_problem": "soft",
     "IPMOptions": "solvers.ipm",
-    "SolverOptions": "solvers.admm",
     "solve_exact": "solvers.exact",
     "pad_soft": "solvers.problem",
     "brick_scores": "score",

@@ -25,10 +25,12 @@ __all__ = ["Analysis", "analyze", "analyze_layout", "analyze_exact", "analyze_ba
 LONGER_RUN = 4
 
 #: The solvers of :func:`analyze_layout` and of the batch engine: the JAX
-#: interior point, ADMM, HiGHS, and "auto" (whichever of the interior point
-#: and HiGHS is estimated faster: :func:`auto_solver` for one layout,
-#: ``batch.auto_split`` per group of layouts).
-SOLVERS = ("jax", "admm", "exact", "auto")
+#: interior point, HiGHS, and "auto" (whichever of the two is estimated
+#: faster: :func:`auto_solver` for one layout, ``batch.auto_split`` per group
+#: of layouts). Each returns the canonical force distribution (README,
+#: "One answer per layout"); the first-order ADMM, which could not, was
+#: removed in version 0.3.
+SOLVERS = ("jax", "exact", "auto")
 
 
 def pick_solver(solver: str, method: str = "ours") -> str:
@@ -109,17 +111,14 @@ def error_message(path: str, exc: Exception) -> str:
 
 
 def solver_fn(params: Params, opts):
-    """``fn(*problem arrays) -> tuple(Solution)`` of the JAX solver that
-    ``opts`` selects (:class:`~stablelego_jax.solvers.ipm.IPMOptions`: interior
-    point; :class:`~stablelego_jax.solvers.admm.SolverOptions`: ADMM), for
+    """``fn(*problem arrays) -> tuple(Solution)`` of the JAX interior point
+    with ``opts`` (:class:`~stablelego_jax.solvers.ipm.IPMOptions`), for
     :func:`~stablelego_jax.solvers.compiled.compiled`."""
-    from .solvers import admm, ipm
+    from .solvers import ipm
     from .solvers.problem import Problem
 
-    solve = admm.solve if isinstance(opts, admm.SolverOptions) else ipm.solve
-
     def fn(*arrays):
-        return tuple(solve(Problem(*arrays), params, opts))
+        return tuple(ipm.solve(Problem(*arrays), params, opts))
 
     return fn
 
@@ -130,7 +129,7 @@ def solve_jax(model: ForceModel, opts=None):
     opts: :class:`~stablelego_jax.solvers.ipm.IPMOptions` or None (interior point,
     dense or layer-by-layer as :func:`~stablelego_jax.solvers.problem.solve_plan`
     chooses, fitted to the layout when that saves more than a compile:
-    :func:`~stablelego_jax.solvers.problem.fit_plan`) or :class:`~stablelego_jax.solvers.admm.SolverOptions` (ADMM).
+    :func:`~stablelego_jax.solvers.problem.fit_plan`).
     Returns (Solution of numpy arrays, model the forces belong to: padded,
     bricks in input order)."""
     import jax
@@ -156,12 +155,11 @@ def _single_problem(model: ForceModel, opts, plan: tuple | None = None):
     """(executable name, padded model, problem arrays, options for it:
     :func:`~stablelego_jax.solvers.ipm.options_for`) of :func:`solve_jax`
     (``plan``: :func:`_single_plan`'s, if computed already)."""
-    from .solvers import admm, ipm
+    from .solvers import ipm
     from .solvers.problem import plan_problem
 
-    name = "admm" if isinstance(opts, admm.SolverOptions) else "ipm"
     padded, prob = plan_problem(model, *(plan or _single_plan(model)))
-    return name, padded, tuple(a for a in prob if a is not None), ipm.options_for(opts, prob)
+    return "ipm", padded, tuple(a for a in prob if a is not None), ipm.options_for(opts, prob)
 
 
 #: Seconds the JAX solver's first answer in a process costs beyond the
@@ -206,12 +204,11 @@ def resolve_unconverged(a: "Analysis", opts=None, params: Params | None = None) 
     the exact solver (HiGHS). The Analysis returned has ``solver`` = the
     solver that produced it and ``retried`` = the runs that did not
     converge; ``converged`` is False only if HiGHS failed too."""
-    from .solvers import admm, ipm
+    from .solvers import ipm
 
     t0 = time.perf_counter() - a.time_s
     params = params or a.model.params
-    if opts is None:
-        opts = admm.SolverOptions() if a.solver == "admm" else ipm.IPMOptions()
+    opts = opts or ipm.IPMOptions()
     model = compile_layout(a.layout, params)
     tried = [f"{a.solver}: {a.iters} iterations, gap {a.gap:.1e}"]
     if a.iters >= opts.max_iter:
@@ -261,11 +258,10 @@ def analyze_layout(
     method: str = "ours",
     fallback: bool = True,
 ) -> Analysis:
-    """Analyse an in-memory layout with ``solver`` in {"jax", "admm", "exact", "auto"}.
+    """Analyse an in-memory layout with ``solver`` in {"jax", "exact", "auto"}.
 
     "jax": the batched-ready interior-point solver (:mod:`~stablelego_jax.solvers.ipm`;
-    ``opts`` an IPMOptions, or a SolverOptions to run ADMM instead);
-    "admm": the first-order solver (:mod:`~stablelego_jax.solvers.admm`);
+    ``opts``: its IPMOptions, None for the defaults);
     "exact": HiGHS; "auto": "exact" or "jax", whichever :func:`auto_solver`
     estimates faster (the Analysis' ``solver`` says which).
 
@@ -283,10 +279,6 @@ def analyze_layout(
         solver = auto_solver(model)
     if solver == "exact":
         return analyze_exact(layout, model, method, t0, exact_method, exact_scale)
-    if solver == "admm":
-        from .solvers.admm import SolverOptions
-
-        opts = opts if isinstance(opts, SolverOptions) else SolverOptions()
     with one_blas_thread():  # JAX's CPU LAPACK goes through OpenBLAS (see blas.py)
         sol, padded = solve_jax(model, opts)
         f = np.asarray(sol.f)
@@ -295,9 +287,7 @@ def analyze_layout(
         iters=int(sol.iters), gap=float(sol.gap), objective=float(sol.objective),
     )
     if fallback and not a.converged:
-        from .solvers import ipm
-
-        a = resolve_unconverged(a, opts if opts is not None or solver == "admm" else ipm.IPMOptions(), params)
+        a = resolve_unconverged(a, opts, params)
     return a
 
 

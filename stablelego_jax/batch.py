@@ -44,7 +44,7 @@ from .layout import LayoutError
 from .model import Params, compile_layout, pack_models
 from .progress import Progress
 from .score import eq9_cost
-from .solvers import admm, ipm
+from .solvers import ipm
 from .solvers.compiled import STATS, available, cache_limit, compiled
 from .solvers.exact import estimated_seconds
 from .solvers.problem import (
@@ -272,31 +272,22 @@ def device_budget() -> float:
 
 def batch_solver_fn(params: Params, opts, n_dev: int):
     """``fn(*stacked problem arrays) -> tuple(Solution)``: ``vmap`` of the JAX
-    solver ``opts`` selects (:class:`~stablelego_jax.solvers.ipm.IPMOptions`:
-    interior point; :class:`~stablelego_jax.solvers.admm.SolverOptions`:
-    ADMM), split over the first ``n_dev`` local devices with ``shard_map``
+    interior point with ``opts`` (:class:`~stablelego_jax.solvers.ipm.IPMOptions`),
+    split over the first ``n_dev`` local devices with ``shard_map``
     (each device runs its own while-loop, so it stops as soon as its own
-    layouts have converged). ADMM: the last argument is each problem's
-    iteration cap, (batch,) int, so a capped first pass and the full pass
-    share one executable (``opts.max_iter`` is not used). The interior
-    point of one dense problem (on each device) runs without ``vmap``: the
+    layouts have converged). The interior point of one dense problem (on each device) runs without ``vmap``: the
     same numbers from a smaller program, compiled in 25-45% less time on
     this CPU at the same solve time, which factors only its real bricks'
     rows (:attr:`~stablelego_jax.solvers.ipm.IPMOptions.cut`); layered problems stay batched
     (unbatched, their block solves ran 10-25% slower; BENCHMARKS.md,
     session 33)."""
-    if isinstance(opts, ipm.IPMOptions):
 
-        def f(*arrays):
-            layers = Problem(*arrays).layers  # (batch, L) or None
-            if arrays[0].shape[0] == 1 and (layers is None or layers.shape[-1] == 1):
-                one = dataclasses.replace(opts, cut=True)  # alone: factor only the real bricks' rows
-                return tuple(x[None] for x in ipm.solve(Problem(*(a[0] for a in arrays)), params, one))
-            return tuple(jax.vmap(lambda *a: ipm.solve(Problem(*a), params, opts))(*arrays))
-    else:
-
-        def f(*arrays):
-            return tuple(jax.vmap(lambda cap, *a: admm.solve(Problem(*a), params, opts, cap))(arrays[-1], *arrays[:-1]))
+    def f(*arrays):
+        layers = Problem(*arrays).layers  # (batch, L) or None
+        if arrays[0].shape[0] == 1 and (layers is None or layers.shape[-1] == 1):
+            one = dataclasses.replace(opts, cut=True)  # alone: factor only the real bricks' rows
+            return tuple(x[None] for x in ipm.solve(Problem(*(a[0] for a in arrays)), params, one))
+        return tuple(jax.vmap(lambda *a: ipm.solve(Problem(*a), params, opts))(*arrays))
 
     if n_dev <= 1:
         return f
@@ -371,7 +362,6 @@ def iter_analyses(
     devices: str | int = 1,
     exact_method: str = "highs",
     exact_scale: bool = True,
-    first_cap: int = 1000,
     method: str = "ours",
     stats: ScoreStats | None = None,
     jobs: int = 1,
@@ -385,7 +375,7 @@ def iter_analyses(
     not come in input order), and first one list of ``(i, exception)`` for
     the layouts that cannot be compiled.
 
-    solver "jax" / "admm": layouts are grouped by solver bucket
+    solver "jax": layouts are grouped by solver bucket
     (:func:`~stablelego_jax.solvers.problem.solve_plan`), padded to the
     group's largest column count and solved ``batch`` (None:
     :func:`default_batch`) at a time by one compiled, ``vmap``-ed solver
@@ -402,9 +392,7 @@ def iter_analyses(
     compile, :func:`assign_units`). ``merge`` (JAX): a bucket with few layouts is
     solved in a larger bucket of the same call when that lowers the
     estimated time, padded batches and compiles counted
-    (:func:`~stablelego_jax.solvers.problem.merge_plans`). ``first_cap`` (ADMM only): iteration cap of a
-    first pass, after which only uncertified layouts are solved again with
-    the full budget. ``stats`` (a :class:`ScoreStats`) accumulates solve and
+    (:func:`~stablelego_jax.solvers.problem.merge_plans`). ``stats`` (a :class:`ScoreStats`) accumulates solve and
     compile time, compiles and non-converged counts. An Analysis of a JAX
     solver has ``time_s`` = its share of its batch(es) and ``iters``.
     ``jax_jobs``: worker processes of the JAX solvers (None: ``jobs``;
@@ -431,27 +419,25 @@ def iter_analyses(
     if solver == "exact":
         yield from _exact_parts(loaded, jobs, method, exact_method, exact_scale, st)
         return
-    if opts is None:
-        opts = ipm.IPMOptions() if solver != "admm" else admm.SolverOptions()
+    opts = opts or ipm.IPMOptions()
     n_dev = _device_count(devices)
     ready = compiled_ready(params, opts, n_dev)
-    units = solve_units(loaded, "admm" if solver == "admm" else "jax", batch, n_dev, merge, ready=ready)
+    units = solve_units(loaded, batch, n_dev, merge, ready=ready)
     if solver == "auto":
         to_exact, units = auto_split(units, ready, n_dev)
         st.auto_exact += len(to_exact)
         yield from _exact_parts(to_exact, jobs, method, exact_method, exact_scale, st)
-        solver = "jax"
     n_jax = sum(len(u.items) for u in units)
     jobs = min(jax_pool_size(jobs if jax_jobs is None else jax_jobs, n_dev, n_jax), max(len(units), 1))
     if jobs > 1:
-        yield from _jax_pool(units, jobs, solver, params, opts, first_cap, fallback, st, ready, workers)
+        yield from _jax_pool(units, jobs, params, opts, fallback, st, ready, workers)
         return
     ahead = None if _on_cpu() else compile_ahead(units, params, opts, n_dev)  # the interior point only
     c0, s0 = (STATS.compiles, STATS.compile_s), (st.compiles, st.compile_s)
     done = False
     try:
         for unit in units:
-            yield from solve_unit(unit, solver, params, opts, n_dev, first_cap, fallback, st)
+            yield from solve_unit(unit, params, opts, n_dev, fallback, st)
         done = True
     finally:
         if ahead is not None:
@@ -490,7 +476,7 @@ def ahead_specs(units: Sequence[SolveUnit], n_dev: int) -> list:
         if u.pack or not sizes:
             continue
         seen.update((u.shape, z) for z in sizes)
-        out += batch_specs(u.items[0][2], u.key, u.m_pad, u.p_pad, u.c_pad, sizes, "batch-ipm")
+        out += batch_specs(u.items[0][2], u.key, u.m_pad, u.p_pad, u.c_pad, sizes)
     return out
 
 
@@ -507,14 +493,13 @@ def compile_ahead(units: Sequence[SolveUnit], params: Params, opts, n_dev: int,
     Returns the executor (shut it down when done), or None when there is
     nothing to overlap (at most one shape, or no threads)."""
     threads = ahead_threads() if threads is None else threads
-    name, o_key = _batch_name(opts)
-    specs = ahead_specs(units, n_dev)[: max(1, cache_limit() // 2)] if threads > 0 and name == "batch-ipm" else []
+    specs = ahead_specs(units, n_dev)[: max(1, cache_limit() // 2)] if threads > 0 else []
     if len(specs) < 2:
         return None
-    fn = batch_solver_fn(params, o_key, n_dev)
+    fn = batch_solver_fn(params, opts, n_dev)
     ex = concurrent.futures.ThreadPoolExecutor(min(threads, len(specs)), thread_name_prefix="compile-ahead")
     for sp in specs:
-        ex.submit(_compile_quietly, name, fn, (params, o_key, n_dev), sp, n_dev == 1)
+        ex.submit(_compile_quietly, BATCH_NAME, fn, (params, opts, n_dev), sp, n_dev == 1)
     return ex
 
 
@@ -660,12 +645,11 @@ def _pieces(items: list, key: tuple, batch: int, n_dev: int, crows: dict, cpu: b
     return m_pad, p_pad, c_pad, bsz, set(_rungs(bsz, len(items), n_dev))
 
 
-def solve_units(loaded, solver: str, batch: int, n_dev: int, merge: bool = True, ready=None,
+def solve_units(loaded, batch: int, n_dev: int, merge: bool = True, ready=None,
                 cpu: bool | None = None) -> list:
     """The :class:`SolveUnit` list of compiled layouts ``loaded`` ((i, layout,
-    ForceModel)): grouped by solver bucket (dense or layered shape, both
-    solvers; interior point: small buckets merged into larger ones when that
-    lowers the estimated time, padded batches and compiles counted:
+    ForceModel)): grouped by solver bucket (dense or layered shape), small
+    buckets merged into larger ones (``merge``) when that lowers the estimated time, padded batches and compiles counted:
     :func:`~stablelego_jax.solvers.problem.merge_plans`), each group padded to its largest column and
     slot counts and cut into pieces of at most one batch. ``ready(key,
     m_pad, p_pad, c_pad, sizes, model) -> bool`` (optional): whether a bucket's
@@ -683,9 +667,8 @@ def solve_units(loaded, solver: str, batch: int, n_dev: int, merge: bool = True,
     for item in loaded:
         groups.setdefault(solve_plan(item[2]), []).append(item)
     crows = {it[0]: chunk_rows(it[2]) for it in loaded}
-    if solver == "jax" and merge:
-        # small buckets join a larger one when that saves more than it costs (not ADMM: measured,
-        # merged buckets ran 1.9x longer, a batch iterating until its slowest layout converges)
+    if merge:
+        # small buckets join a larger one when that saves more than it costs
         done, m_pads = set(), {}
         for k, v in groups.items():
             m_pads[k], p_pad, c_pad, _, sizes = _pieces(v, k, batch, n_dev, crows, cpu)
@@ -702,11 +685,11 @@ def solve_units(loaded, solver: str, batch: int, n_dev: int, merge: bool = True,
     units = []
     for key in sorted(groups):
         runs = [groups[key]]
-        if solver == "jax" and cpu:
+        if cpu:
             runs = column_runs(groups[key], key, batch, n_dev, crows, ready, cpu)
         for items in runs:
             m_pad, p_pad, c_pad, bsz, _ = _pieces(items, key, batch, n_dev, crows, cpu)
-            if _packs(solver, key, bsz):
+            if _packs(key, bsz):
                 units += [SolveUnit(key, m_pad, p_pad, 1, p, c_pad, pack=len(p) > 1)
                           for p in pack_items(items, key[1], m_pad, c_pad, crows)]
                 continue
@@ -715,11 +698,11 @@ def solve_units(loaded, solver: str, batch: int, n_dev: int, merge: bool = True,
     return units
 
 
-def _packs(solver: str, key: tuple, bsz: int) -> bool:
+def _packs(key: tuple, bsz: int) -> bool:
     """Whether a bucket's layouts are packed several to a problem
     (:func:`pack_items`): the interior point's dense buckets of at most
     :data:`~stablelego_jax.solvers.ipm.CUT_MIN` bricks, solved one problem at a time."""
-    return solver == "jax" and bsz == 1 and key[0] == "dense" and key[1] <= ipm.CUT_MIN
+    return bsz == 1 and key[0] == "dense" and key[1] <= ipm.CUT_MIN
 
 
 def column_runs(items: list, key: tuple, batch: int, n_dev: int, crows: dict, ready=None,
@@ -754,7 +737,7 @@ def column_runs(items: list, key: tuple, batch: int, n_dev: int, crows: dict, re
         if (i, j) not in cache:
             run = [it for r in rungs[i:j] for it in by_rung[r]]
             m_pad, p_pad, c_pad, bsz, sizes = _pieces(run, key, batch, n_dev, crows, cpu)
-            if _packs("jax", key, bsz):
+            if _packs(key, bsz):
                 solves = len(pack_items(run, key[1], m_pad, c_pad, crows))
             else:
                 solves = sum(_rungs(bsz, len(run), n_dev))
@@ -809,28 +792,18 @@ def pack_items(items: list, n: int, m_pad: int, c_pad: int, crows: dict) -> list
     return [p[0] for p in packs]
 
 
-def _batch_name(opts) -> tuple:
-    """(name, options key) of the batched solver executable of ``opts``; ADMM's
-    iteration cap is an argument, so its capped and full passes share one."""
-    if isinstance(opts, ipm.IPMOptions):
-        return "batch-ipm", opts
-    return "batch-admm", dataclasses.replace(opts, max_iter=0)
+#: Name of the batched interior point's executables (:func:`~stablelego_jax.solvers.compiled.compiled`).
+BATCH_NAME = "batch-ipm"
 
 
-def batch_specs(model, key: tuple, m_pad: int, p_pad: int, c_pad: int | None, sizes, name: str) -> list:
-    """The argument shapes (``jax.ShapeDtypeStruct``) of the batched solver
-    ``name`` (:func:`_batch_name`) for layouts like ``model`` padded to
-    ``key``, ``m_pad``, ``p_pad`` and ``c_pad``, at each batch size of
-    ``sizes``: one tuple a size, as :func:`solve_unit` passes its arrays
-    (ADMM: and each problem's iteration cap)."""
+def batch_specs(model, key: tuple, m_pad: int, p_pad: int, c_pad: int | None, sizes) -> list:
+    """The argument shapes (``jax.ShapeDtypeStruct``) of the batched interior
+    point for layouts like ``model`` padded to ``key``, ``m_pad``, ``p_pad``
+    and ``c_pad``, at each batch size of ``sizes``: one tuple a size, as
+    :func:`solve_unit` passes its arrays."""
     arrays = [a for a in plan_problem(model, key, m_pad, p_pad, c_pad)[1] if a is not None]
-    out = []
-    for size in sizes:
-        specs = [jax.ShapeDtypeStruct((size,) + np.shape(a), np.result_type(a)) for a in arrays]
-        if name == "batch-admm":
-            specs.append(jax.ShapeDtypeStruct((size,), np.int32))
-        out.append(tuple(specs))
-    return out
+    return [tuple(jax.ShapeDtypeStruct((size,) + np.shape(a), np.result_type(a)) for a in arrays)
+            for size in sizes]
 
 
 def compiled_ready(params: Params, opts, n_dev: int):
@@ -840,12 +813,11 @@ def compiled_ready(params: Params, opts, n_dev: int):
     Each answer is kept (one planning pass asks for a bucket in
     :func:`solve_units` and again in :func:`auto_split`; ``model`` only
     gives the arrays' dtypes and trailing shapes, set by the padding)."""
-    name, o_key = _batch_name(opts)
     seen: dict = {}
 
     def look(key, m_pad, p_pad, c_pad, sizes, model) -> bool:
-        return all(available(name, (params, o_key, n_dev), specs, export=n_dev == 1)
-                   for specs in batch_specs(model, key, m_pad, p_pad, c_pad, sizes, name))
+        return all(available(BATCH_NAME, (params, opts, n_dev), specs, export=n_dev == 1)
+                   for specs in batch_specs(model, key, m_pad, p_pad, c_pad, sizes))
 
     def ready(key, m_pad, p_pad, c_pad, sizes, model) -> bool:
         tag = (key, m_pad, p_pad, c_pad, frozenset(sizes))
@@ -856,10 +828,10 @@ def compiled_ready(params: Params, opts, n_dev: int):
     return ready
 
 
-def solve_unit(unit: SolveUnit, solver: str, params: Params, opts, n_dev: int, first_cap: int,
-               fallback: bool, st: "ScoreStats") -> Iterator[list]:
-    """Solve one :class:`SolveUnit` (``first_cap``, ``fallback``, ``st``: as
-    :func:`iter_analyses`' ``first_cap``, ``fallback`` and ``stats``);
+def solve_unit(unit: SolveUnit, params: Params, opts, n_dev: int, fallback: bool,
+               st: "ScoreStats") -> Iterator[list]:
+    """Solve one :class:`SolveUnit` with the interior point's ``opts``
+    (``fallback``, ``st``: as :func:`iter_analyses`' ``fallback`` and ``stats``);
     yields lists of (i, Analysis) (see :func:`iter_analyses`). A packed unit
     is one problem; where it does not converge, each of its layouts is
     solved alone, with the same compiled shape."""
@@ -869,11 +841,8 @@ def solve_unit(unit: SolveUnit, solver: str, params: Params, opts, n_dev: int, f
         size = batch_rung(len(probs), n_dev, bsz)
         probs = probs + [probs[-1]] * (size - len(probs))
         arrays = tuple(a for a in stack_problems(probs) if a is not None)
-        name, o_key = _batch_name(o)
-        if name == "batch-admm":
-            arrays += (np.full(size, o.max_iter, np.int32),)
         n0, t0c = STATS.compiles, STATS.compile_s
-        exe = compiled(name, batch_solver_fn(params, o_key, n_dev), (params, o_key, n_dev), arrays,
+        exe = compiled(BATCH_NAME, batch_solver_fn(params, o, n_dev), (params, o, n_dev), arrays,
                        export=n_dev == 1)
         st.compiles += STATS.compiles - n0
         st.compile_s += STATS.compile_s - t0c
@@ -891,8 +860,8 @@ def solve_unit(unit: SolveUnit, solver: str, params: Params, opts, n_dev: int, f
         # a pack that did not converge: each layout alone (the same compiled shape), its
         # time counting its share of the pack's
         for it in unit.items:
-            for part in solve_unit(dataclasses.replace(unit, items=[it], pack=False), solver, params, opts,
-                                   n_dev, first_cap, fallback, st):
+            for part in solve_unit(dataclasses.replace(unit, items=[it], pack=False), params, opts,
+                                   n_dev, fallback, st):
                 for _, a in part:
                     a.time_s += dt / len(unit.items)
                 yield part
@@ -902,34 +871,17 @@ def solve_unit(unit: SolveUnit, solver: str, params: Params, opts, n_dev: int, f
         fm, prob = plan_problem(it[2], unit.key, unit.m_pad, unit.p_pad, unit.c_pad)
         prepared.append((it, fm, prob))
     bsz = unit.bsz
-    # ADMM: pass 1 with an iteration cap; only layouts it leaves uncertified
-    # are solved again (from scratch, full budget), so one slow layout does
-    # not hold a whole batch for its full iteration count
-    passes = [opts]
-    if solver == "admm" and 0 < first_cap < opts.max_iter:
-        passes = [dataclasses.replace(opts, max_iter=first_cap), opts]
-    pending, spent = prepared, {}
-    for k, o in enumerate(passes):
-        last = k == len(passes) - 1
-        retry = []
-        for b0 in range(0, len(pending), bsz):
-            sub = pending[b0: b0 + bsz]
-            sol, dt = solve_batch([pr for _, _, pr in sub], bsz, o)
-            done = []
-            for j, ((i, lay, model), fm, _) in enumerate(sub):
-                t_prev, it_prev = spent.get(i, (0.0, 0))
-                spent[i] = (t_prev + dt / len(sub), it_prev + int(sol.iters[j]))
-                if not last and not bool(sol.converged[j]):
-                    retry.append(sub[j])
-                    continue
-                a = make_analysis(lay, fm, np.asarray(sol.f[j]), solver, bool(sol.converged[j]),
-                                  time.perf_counter(), iters=spent[i][1], gap=float(sol.gap[j]),
-                                  objective=float(sol.objective[j]))
-                a.time_s = spent[i][0]  # amortised share of its batch(es)
-                done.append((i, _settled(a, o, params, fallback, st)))
-            if done:
-                yield done
-        pending = retry
+    for b0 in range(0, len(prepared), bsz):
+        sub = prepared[b0: b0 + bsz]
+        sol, dt = solve_batch([pr for _, _, pr in sub], bsz, opts)
+        done = []
+        for j, ((i, lay, model), fm, _) in enumerate(sub):
+            a = make_analysis(lay, fm, np.asarray(sol.f[j]), "jax", bool(sol.converged[j]),
+                              time.perf_counter(), iters=int(sol.iters[j]), gap=float(sol.gap[j]),
+                              objective=float(sol.objective[j]))
+            a.time_s = dt / len(sub)  # amortised share of its batch
+            done.append((i, _settled(a, opts, params, fallback, st)))
+        yield done
 
 
 def _solve_pack(unit: SolveUnit, opts, solve_batch) -> tuple:
@@ -970,12 +922,12 @@ def _settled(a, opts, params: Params, fallback: bool, st: "ScoreStats"):
     return a
 
 
-def _unit_results(unit: SolveUnit, solver, params, opts, first_cap, fallback) -> tuple:
+def _unit_results(unit: SolveUnit, params, opts, fallback) -> tuple:
     """In a worker process: ([(i, Analysis)] of ``unit`` on one device, the
     worker's :class:`ScoreStats` of it)."""
     st = ScoreStats()
     with one_blas_thread():
-        out = [x for part in solve_unit(unit, solver, params, opts, 1, first_cap, fallback, st) for x in part]
+        out = [x for part in solve_unit(unit, params, opts, 1, fallback, st) for x in part]
     return out, st
 
 
@@ -1061,7 +1013,7 @@ def _ready_worker(one_core: bool = False) -> None:
     atexit.register(quick_exit)
 
 
-def _jax_pool(units, jobs, solver, params, opts, first_cap, fallback, st, ready=None, workers=None) -> Iterator[list]:
+def _jax_pool(units, jobs, params, opts, fallback, st, ready=None, workers=None) -> Iterator[list]:
     """The units over ``jobs`` worker processes, one device (and one XLA
     pool thread) each: ``workers`` (:class:`Workers`, at least ``jobs``;
     left running) or spawned here; every worker solves the units
@@ -1084,7 +1036,7 @@ def _jax_pool(units, jobs, solver, params, opts, first_cap, fallback, st, ready=
                 u = next_unit(queues, w, shapes, secs, have[w], on_disk)
                 if u is None:
                     break
-                fut = pools[w].submit(_unit_results, units[u], solver, params, opts, first_cap, fallback)
+                fut = pools[w].submit(_unit_results, units[u], params, opts, fallback)
                 flying[fut] = (w, u)
 
     try:
@@ -1226,7 +1178,6 @@ def _score_files(
     progress: bool = True,
     exact_method: str = "highs",
     exact_scale: bool = True,
-    first_cap: int = 1000,
     stream=None,
     method: str = "ours",
     column: str | None = None,
@@ -1239,18 +1190,15 @@ def _score_files(
     (``score_files`` runs this with one OpenBLAS thread: :mod:`~stablelego_jax.blas`).
 
     solver: "jax" (batched interior point, :mod:`~stablelego_jax.solvers.ipm`),
-    "admm" (batched first-order ADMM, :mod:`~stablelego_jax.solvers.admm`),
     "auto" (each group of layouts by whichever of "jax" and "exact" is
     estimated faster, :func:`auto_split`; each line's ``solver`` says which) or
     "exact" (HiGHS ``exact_method``, one layout at a time; ``exact_scale``:
     torque rows in N stud, the same LP, which HiGHS solves reliably on
     layouts of hundreds of bricks); opts: options of the JAX solver
-    (IPMOptions / SolverOptions; None: defaults); method: "ours" or a
+    (IPMOptions; None: defaults); method: "ours" or a
     baseline ("luo", "eb"; exact solver only, see :mod:`~stablelego_jax.solvers.baselines`);
     batch: most layouts per solver call (None: :func:`default_batch`); devices: "all" or a count of local
-    devices to shard each batch over; first_cap (ADMM only): iteration cap
-    of a first pass, after which only uncertified layouts are solved again
-    with the full budget (0: one pass); chunk: layouts read and grouped at a
+    devices to shard each batch over; chunk: layouts read and grouped at a
     time (bounds host memory); column / id_column: the layout and id columns
     of JSON-lines and Parquet inputs (:mod:`~stablelego_jax.formats.rows`;
     each row is one result line, ``file`` = ``FILE#ROW`` or ``FILE#ID``, with
@@ -1281,7 +1229,7 @@ def _score_files(
     os.makedirs(d, exist_ok=True)
     # the JAX pool's workers start now, while this process reads and plans ("auto" may give
     # HiGHS every layout: its workers start when it knows)
-    pool_jobs = jax_pool_size(jobs, n_dev, len(todo)) if solver in ("jax", "admm") else 1
+    pool_jobs = jax_pool_size(jobs, n_dev, len(todo)) if solver == "jax" else 1
     with open(out, "a", encoding="utf-8") as fh, (Workers(pool_jobs) if pool_jobs > 1 else contextlib.nullcontext()) \
             as workers:
 
@@ -1311,7 +1259,7 @@ def _score_files(
                 st.errors += len(errs)
                 bar.advance(len(errs))
             for part_done in iter_analyses([lay for _, lay, _ in loaded], solver, params, opts, batch, devices,
-                                           exact_method, exact_scale, first_cap, method, stats=st, jobs=jobs,
+                                           exact_method, exact_scale, method, stats=st, jobs=jobs,
                                            workers=workers):
                 recs = []
                 for i, a in part_done:

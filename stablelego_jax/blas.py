@@ -44,8 +44,7 @@ loss of ``benchmarks/loss_scale.py`` then uses both cores of that box.
 On such a pool ``score`` and ``analyze`` solve one layout a call (their
 planner's batch sizes, ``batch.batch_sizes``; small layouts still share a
 call as one packed problem), and :func:`check_batched_linalg` turns a hang
-into an error where the library batches anyway (training,
-``admm.solve_batch``).
+into an error where the library batches anyway (training).
 """
 from __future__ import annotations
 

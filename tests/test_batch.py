@@ -186,11 +186,11 @@ def test_accelerator_prices_a_compile_in_cpu_solve_seconds(monkeypatch):
     monkeypatch.setattr(batch, "merge_plans", lambda *a, **k: seen.append(k) or merge_plans(*a, **k))
     lays = [stairs(6)] * 3 + [stairs(14)] * 3
     loaded = [(i, lay, compile_layout(lay, Params())) for i, lay in enumerate(lays)]
-    batch.solve_units(loaded, "jax", 64, 1, cpu=True)
-    batch.solve_units(loaded, "jax", 64, 1, cpu=False)
+    batch.solve_units(loaded, 64, 1, cpu=True)
+    batch.solve_units(loaded, 64, 1, cpu=False)
     assert "compile_s" not in seen[0] and "load_s" not in seen[0]
     assert (seen[1]["compile_s"], seen[1]["load_s"]) == (comp, load)
-    assert batch.solve_units(loaded, "jax", 64, 1) == batch.solve_units(loaded, "jax", 64, 1, cpu=True)
+    assert batch.solve_units(loaded, 64, 1) == batch.solve_units(loaded, 64, 1, cpu=True)
     # 2000 layouts of dense 16 padded to dense 32 cost more than a CPU compile, less than a device's
     sizes = {("dense", 16): [(16, 3, 6)] * 2000, ("dense", 32): [(32, 5, 8)] * 2000}
     pad = 2000 * (plan_seconds(("dense", 32)) - plan_seconds(("dense", 16)))
@@ -272,7 +272,7 @@ def test_accelerator_compiles_ahead_in_threads_with_the_same_answers(monkeypatch
     lays = [stairs(3), stairs(6), stairs(14), tower(3), stairs(20)]
     plain = analyze_many(lays, solver="jax", jobs=1, merge=False)
     loaded = [(i, lay, compile_layout(lay, Params())) for i, lay in enumerate(lays)]
-    units = batch.solve_units(loaded, "jax", 64, 1, merge=False, cpu=False)
+    units = batch.solve_units(loaded, 64, 1, merge=False, cpu=False)
     specs = batch.ahead_specs(units, 1)
     assert len(specs) == len({u.shape for u in units}) >= 2  # one batch size a bucket here
     monkeypatch.setenv("STABLELEGO_CACHE", "0")  # in-process only: every shape really compiles
@@ -345,19 +345,6 @@ def test_bad_device_count_is_refused(tmp_path):
         score_files([os.path.join(REF, SMALL[0])], str(tmp_path / "r.jsonl"), devices=99, progress=False)
 
 
-def test_capped_first_pass_then_retry_of_uncertified(tmp_path):
-    """With a 100-iteration first pass, layouts that need more are solved again."""
-    out = tmp_path / "r.jsonl"
-    paths = [os.path.join(REF, n) for n in SMALL]
-    st = score_files(paths, str(out), solver="admm", first_cap=100, progress=False)
-    assert (st.scored, st.not_converged) == (3, 0)
-    recs = {r["file"]: r for r in _lines(out)}
-    assert recs[paths[2]]["iters"] > 100  # stick_light needs several hundred iterations
-    for p in paths:
-        ex = analyze(p, solver="exact")
-        assert recs[p]["stable"] == ex.stable and recs[p]["weakest"] == ex.weakest
-
-
 def test_compiled_buckets_are_not_merged_away(monkeypatch, tmp_path):
     """A bucket whose batched solver is compiled already (here: in this
     process) is solved in its own shape, not padded into a larger bucket;
@@ -376,39 +363,21 @@ def test_compiled_buckets_are_not_merged_away(monkeypatch, tmp_path):
     ready = compiled_ready(Params(), ipm.IPMOptions(), 1)
     monkeypatch.setenv("STABLELEGO_CACHE_DIR", str(tmp_path))  # nothing on disk yet
     compiled.clear()
-    units = solve_units(loaded, "jax", 64, 1, ready=ready)
+    units = solve_units(loaded, 64, 1, ready=ready)
     assert len({u.key for u in units}) == 1 and units[0].key != small  # merged: one compile instead of two
     analyze_many(lays[:96], "jax", merge=False)  # compiles the small bucket's solver
     ready = compiled_ready(Params(), ipm.IPMOptions(), 1)  # a new planning pass
-    units = solve_units(loaded, "jax", 64, 1, ready=ready)
+    units = solve_units(loaded, 64, 1, ready=ready)
     keys = {u.key for u in units}
     assert small in keys and len(keys) == 2
     # within one pass a bucket is looked up once (solve_units, then auto_split)
     calls = []
     real = batch.available
     monkeypatch.setattr(batch, "available", lambda *a, **k: calls.append(a[0]) or real(*a, **k))
-    again = solve_units(loaded, "jax", 64, 1, ready=ready)
+    again = solve_units(loaded, 64, 1, ready=ready)
     assert [(u.key, u.m_pad, len(u.items)) for u in again] == [(u.key, u.m_pad, len(u.items)) for u in units]
     assert calls == []
     compiled.clear()
-
-
-def test_admm_passes_share_one_executable():
-    """The capped first pass and the retry of what it left uncertified run
-    the same compiled ADMM solver when their batches are equally padded
-    (the cap is an argument, not part of the compiled shape)."""
-    from stablelego_jax.batch import analyze_many
-    from stablelego_jax.solvers import compiled
-
-    paths = [os.path.join(REF, n) for n in ("stick_light.json", "stick_heavy.json")]
-    compiled.clear()
-    n0 = compiled.STATS.compiles
-    res = analyze_many([load_layout(p) for p in paths], "admm", first_cap=50)
-    assert compiled.STATS.compiles - n0 == 1
-    for p, a in zip(paths, res):
-        assert a.converged and a.iters > 50  # both went through the second pass
-        ex = analyze(p, solver="exact")
-        assert a.stable == ex.stable and a.weakest == ex.weakest
 
 
 def test_analyze_many_in_input_order_with_errors_in_place():
@@ -598,10 +567,10 @@ def test_auto_split_gives_each_group_to_the_faster_solver(monkeypatch):
 
     lays = [stairs(3)] * 8
     loaded = [(i, lay, compile_layout(lay, Params())) for i, lay in enumerate(lays)]
-    units = solve_units(loaded, "jax", 64, 1, merge=False)
+    units = solve_units(loaded, 64, 1, merge=False)
     assert len(units) == 1
     # a few small layouts: HiGHS' estimate is below even a warm interior point's (a load)
-    few = solve_units(loaded[:4], "jax", 64, 1, merge=False)
+    few = solve_units(loaded[:4], 64, 1, merge=False)
     assert sum(batch.estimated_seconds(it[2]) for it in loaded[:4]) < few[0].seconds() + batch.LOAD_S
     for ready in (lambda *a: False, lambda *a: True):
         ex, jx = auto_split(few, ready)
@@ -735,12 +704,12 @@ def test_packed_small_layouts_get_the_answers_they_get_alone(monkeypatch):
     # two larger stairs join the small layouts' bucket to dense 24, solved one problem at a time
     lays = [stairs(k) for k in range(1, 7)] + [tower(k) for k in range(1, 7)] + [stairs(18), stairs(22)]
     loaded = [(i, lay, compile_layout(lay)) for i, lay in enumerate(lays)]
-    units = solve_units(loaded, "jax", 64, 1)
+    units = solve_units(loaded, 64, 1)
     assert any(u.pack for u in units)
     assert sorted(it[0] for u in units for it in u.items) == list(range(len(lays)))
     packed = analyze_many(lays, "jax", jobs=1)
     monkeypatch.setattr(batch, "PACK_MOST", 1)
-    assert not any(u.pack for u in solve_units(loaded, "jax", 64, 1))
+    assert not any(u.pack for u in solve_units(loaded, 64, 1))
     alone = analyze_many(lays, "jax", jobs=1)
     for a, b in zip(packed, alone):
         assert (a.stable, a.weakest, a.converged, a.solver) == (b.stable, b.weakest, b.converged, b.solver)
@@ -766,7 +735,7 @@ def test_packed_layouts_of_very_different_weights_get_their_lone_answers():
     items = [(i, lay, compile_layout(lay)) for i, lay in enumerate(lays)]
 
     def run(unit):
-        return dict(x for part in solve_unit(unit, "jax", Params(), ipm.IPMOptions(), 1, 0, False, ScoreStats())
+        return dict(x for part in solve_unit(unit, Params(), ipm.IPMOptions(), 1, False, ScoreStats())
                     for x in part)
 
     packed = run(SolveUnit(("dense", 40), 1024, 40, 1, items, 128, pack=True))
@@ -792,7 +761,7 @@ def test_a_pack_that_does_not_converge_is_solved_layout_by_layout():
     opts = ipm.IPMOptions(max_iter=4)
 
     def run(unit):
-        return dict(x for part in solve_unit(unit, "jax", Params(), opts, 1, 0, False, ScoreStats()) for x in part)
+        return dict(x for part in solve_unit(unit, Params(), opts, 1, False, ScoreStats()) for x in part)
 
     packed = run(SolveUnit(("dense", 24), 512, 40, 1, items, 64, pack=True))
     for it in items:

@@ -190,12 +190,10 @@ def test_layered_problems_assembled_from_supports_give_the_per_level_products_an
     assert costs[1] > 0.1  # the staircase's drags carry its steps: the rank-one terms matter
 
 
-def test_analyze_uses_interior_point_and_admm_on_request():
+def test_analyze_uses_the_interior_point():
     lay = stairs(5)
     a = analyze_layout(lay)
     assert a.solver == "jax" and a.converged and 0 < a.iters < 80
-    b = analyze_layout(lay, solver="admm")
-    assert b.solver == "admm" and b.stable == a.stable
 
 
 def test_reference_outcomes_match_labels_and_exact():

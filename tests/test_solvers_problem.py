@@ -22,8 +22,8 @@ from stablelego_jax.solvers.problem import (ladder,
     bucket_shape,
     chunk_rows,
     fit_plan,
+    gram_plan,
     layer_bucket,
-    layer_gram,
     layer_plan,
     layered_problem,
     levels_ok,
@@ -308,7 +308,7 @@ def test_layer_gram_blocks_are_the_dense_weighted_gram(layered):
     # columns grouped by brick pair (the problem's chunks, several per pair here), or one piece per column
     assert prob.chunks is not None and (prob.chunks < mm).sum() == np.asarray(prob.col_mask).sum()
     for p in (prob, prob._replace(chunks=None)):
-        gram = layer_gram(p, coef)
+        gram = gram_plan(p.col_brick, coef, n, 1 if p.layers is None else p.layers.shape[0], p.chunks)
         assert (gram.L > 1) == layered and gram.L * gram.B == n and gram.k == 6 * gram.B
         D, E = (np.asarray(x) for x in gram.blocks(np.asarray(e)))
         k = gram.k

@@ -1,4 +1,4 @@
-"""``stablelego analyze FILE... [--library L] [--solver jax|admm|exact] [--method ours|luo|eb] [--json] [--png P] [--html P] [--skip-unsupported]``"""
+"""``stablelego analyze FILE... [--library L] [--solver jax|exact|auto] [--method ours|luo|eb] [--json] [--png P] [--html P] [--skip-unsupported]``"""
 from __future__ import annotations
 
 import json

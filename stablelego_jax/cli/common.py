@@ -54,7 +54,7 @@ def add_solver_option(parser) -> None:
     from ..analysis import SOLVERS
 
     parser.add_argument("--solver", choices=list(SOLVERS), default=None,
-                        help="jax (interior point in JAX), admm (first-order JAX solver), "
+                        help="jax (interior point in JAX), "
                              "exact (HiGHS; the only one for luo and eb) or auto (per group of layouts, whichever "
                              "of jax and exact is estimated faster, compiling included; each result says which; "
                              "the default for --method ours)")

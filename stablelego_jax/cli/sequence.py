@@ -36,8 +36,8 @@ def add_parser(sub) -> None:
                    help="insertion press in newtons on each new brick (e.g. 21.56, APEX-MR's 2.2 kg press model)")
     s.add_argument("--no-support", action="store_true", help="with --press: do not search for support locations")
     s.add_argument("--plan", action="store_true", help="look for a build order in which every step stands")
-    s.add_argument("--solver", choices=["jax", "admm", "exact"], default="jax",
-                   help="jax (batched interior point, default), admm or exact (HiGHS, one step at a time)")
+    s.add_argument("--solver", choices=["jax", "exact"], default="jax",
+                   help="jax (batched interior point, default) or exact (HiGHS, one step at a time)")
     s.add_argument("--library", help="brick library JSON (default: the StableLego library)")
     s.add_argument("--skip-unsupported", action="store_true",
                    help="LDraw: sequence the parts that can be modelled, with a warning naming the others")

@@ -3,7 +3,6 @@
 * :mod:`.problem`: the problem and solution pytrees, the one size ladder,
   padding and solve plans, the scaled equilibrium operators;
 * :mod:`.ipm`: the JAX interior point (dense or layer by layer; the default);
-* :mod:`.admm`: the first-order JAX solver (graph-form ADMM);
 * :mod:`.soft_ipm`: the barrier interior point of soft problems with its
   implicit adjoint (behind :mod:`stablelego_jax.loss`);
 * :mod:`.exact`: the exact referee (HiGHS);

@@ -30,8 +30,8 @@ it is in dense problems
 Iteration counts are 20-50 whatever the layout (no long first-order
 tails), so a ``vmap``-ed batch finishes together.
 
-Returns the same :class:`~stablelego_jax.solvers.problem.Solution` as the ADMM
-solver (forces in N, objective and dual bound in N-based units).
+Returns a :class:`~stablelego_jax.solvers.problem.Solution` (forces in N,
+objective and dual bound in N-based units).
 """
 from __future__ import annotations
 

@@ -75,7 +75,6 @@ __all__ = [
     "scaled_wrenches",
     "operators",
     "LayerGram",
-    "layer_gram",
     "gram_plan",
     "block_windows",
     "make_solution",
@@ -726,7 +725,7 @@ def layered_problem(model: ForceModel, L: int, c_pad: int | None = None, support
     ``layers`` field (shape (L,)) carries the layer count through jit, and
     ``chunks`` its columns grouped by brick pair (:func:`pair_chunks`),
     padded to ``c_pad`` rows (default: the ladder) for the weighted Gram
-    (:func:`layer_gram`). ``supports`` = K: numbered by slabs, with each
+    (:func:`gram_plan`). ``supports`` = K: numbered by slabs, with each
     brick's supports in K slots (:func:`support_table`), which the interior
     point assembles brick by brick."""
     prob = to_problem(model)
@@ -1196,14 +1195,6 @@ def block_windows(bi, bj, n: int, L: int):
     ok = (bi < n) & (bj < n)
     blk = jnp.where(ok & (li == lj), li, jnp.where(ok & (li == lj + 1), L + lj, 2 * L))
     return jnp.stack([blk, 6 * (bi % B), 6 * (bj % B)], axis=-1)
-
-
-def layer_gram(prob: Problem, coef) -> LayerGram:
-    """The :class:`LayerGram` of ``prob`` (``coef``: (m, 2, 6) scaled
-    coefficients from :func:`operators`): :func:`gram_plan` of its columns,
-    layers and chunks."""
-    L = 1 if prob.layers is None else prob.layers.shape[0]
-    return gram_plan(prob.col_brick, coef, prob.gravity.shape[0], L, prob.chunks)
 
 
 def gram_plan(col_brick, coef, n: int, L: int, chunks=None) -> LayerGram:
