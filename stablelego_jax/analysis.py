@@ -19,7 +19,7 @@ from .solvers.exact import solve_exact
 
 __all__ = ["Analysis", "analyze", "analyze_layout", "analyze_exact", "analyze_baseline", "make_analysis", "error_message",
            "solve_jax", "solver_fn", "resolve_unconverged", "LONGER_RUN", "auto_solver", "JAX_START_S",
-           "SOLVERS", "pick_solver"]
+           "SOLVERS", "REMOVED_SOLVERS", "pick_solver"]
 
 #: A JAX run stopped at its iteration cap is tried again with this many times the cap.
 LONGER_RUN = 4
@@ -32,12 +32,18 @@ LONGER_RUN = 4
 #: removed in version 0.3.
 SOLVERS = ("jax", "exact", "auto")
 
+#: Solvers of earlier versions, each with what to use instead (the one-line error a caller gets).
+REMOVED_SOLVERS = {"admm": "the first-order ADMM solver was removed in version 0.3 (it could not give the "
+                           "canonical force distribution); use jax (the JAX interior point), exact or auto"}
+
 
 def pick_solver(solver: str, method: str = "ours") -> str:
     """The solver that answers ``method`` when ``solver`` is asked for: a
     baseline method ("luo", "eb") runs on the exact solver only, so "auto"
     becomes "exact" there. ValueError (one line) for an unknown solver or
     method, or a baseline asked of a JAX solver."""
+    if solver in REMOVED_SOLVERS:
+        raise ValueError(f"solver {solver!r}: {REMOVED_SOLVERS[solver]}")
     if solver not in SOLVERS:
         raise ValueError(f"unknown solver {solver!r} (expected one of {', '.join(SOLVERS)})")
     if method not in METHODS:

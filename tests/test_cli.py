@@ -350,3 +350,15 @@ def test_failing_single_file_leaves_no_png(tmp_path, capsys):
     assert not png.exists()
     assert os.listdir(tmp_path) == ["bad.json"]
     assert bad in err
+
+
+def test_a_removed_solver_is_a_usage_error_saying_what_replaces_it(capsys):
+    """``--solver admm`` (removed in version 0.3) is refused before anything
+    is read, with one line naming what to use instead."""
+    for cmd in (["analyze", STAIR_20], ["score", STAIR_20, "--out", "never-written.jsonl"], ["sequence", STAIR_20]):
+        with pytest.raises(SystemExit) as e:
+            cli.main([*cmd, "--solver", "admm"])
+        assert e.value.code == 2
+        err = capsys.readouterr().err
+        assert "removed in version 0.3" in err and "use jax" in err
+    assert not os.path.exists("never-written.jsonl")

@@ -5,7 +5,7 @@ import json
 import os
 import sys
 
-__all__ = ["add_solver_option", "solver_for", "png_target", "report_error", "load_library", "int_at_least", "int_or_auto",
+__all__ = ["add_solver_option", "solver_choice", "solver_for", "png_target", "report_error", "load_library", "int_at_least", "int_or_auto",
            "positive_seconds"]
 
 
@@ -48,12 +48,25 @@ def positive_seconds(v: str) -> float:
     return t
 
 
+def solver_choice(v: str) -> str:
+    """argparse ``type`` of ``--solver``: the name as given, or a usage error
+    saying what replaces a solver of an earlier version
+    (:data:`~stablelego_jax.analysis.REMOVED_SOLVERS`)."""
+    import argparse
+
+    from ..analysis import REMOVED_SOLVERS
+
+    if v in REMOVED_SOLVERS:
+        raise argparse.ArgumentTypeError(REMOVED_SOLVERS[v])
+    return v
+
+
 def add_solver_option(parser) -> None:
     """The ``--solver`` option of ``analyze`` and ``score`` (choices:
     :data:`~stablelego_jax.analysis.SOLVERS`; unset: :func:`solver_for`)."""
     from ..analysis import SOLVERS
 
-    parser.add_argument("--solver", choices=list(SOLVERS), default=None,
+    parser.add_argument("--solver", type=solver_choice, choices=list(SOLVERS), default=None,
                         help="jax (interior point in JAX), "
                              "exact (HiGHS; the only one for luo and eb) or auto (per group of layouts, whichever "
                              "of jax and exact is estimated faster, compiling included; each result says which; "

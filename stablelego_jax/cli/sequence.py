@@ -7,7 +7,7 @@ import dataclasses
 import json
 import sys
 
-from .common import report_error
+from .common import report_error, solver_choice
 
 __all__ = ["add_parser", "cmd_sequence"]
 
@@ -36,7 +36,7 @@ def add_parser(sub) -> None:
                    help="insertion press in newtons on each new brick (e.g. 21.56, APEX-MR's 2.2 kg press model)")
     s.add_argument("--no-support", action="store_true", help="with --press: do not search for support locations")
     s.add_argument("--plan", action="store_true", help="look for a build order in which every step stands")
-    s.add_argument("--solver", choices=["jax", "exact"], default="jax",
+    s.add_argument("--solver", type=solver_choice, choices=["jax", "exact"], default="jax",
                    help="jax (batched interior point, default) or exact (HiGHS, one step at a time)")
     s.add_argument("--library", help="brick library JSON (default: the StableLego library)")
     s.add_argument("--skip-unsupported", action="store_true",
