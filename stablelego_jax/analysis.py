@@ -19,7 +19,7 @@ from .solvers.exact import solve_exact
 
 __all__ = ["Analysis", "analyze", "analyze_layout", "analyze_exact", "analyze_baseline", "make_analysis", "error_message",
            "solve_jax", "solver_fn", "resolve_unconverged", "LONGER_RUN", "auto_solver", "JAX_START_S",
-           "SOLVERS", "REMOVED_SOLVERS", "pick_solver"]
+           "SOLVERS", "REMOVED_SOLVERS", "SINGLE_NAME", "pick_solver"]
 
 #: A JAX run stopped at its iteration cap is tried again with this many times the cap.
 LONGER_RUN = 4
@@ -144,8 +144,8 @@ def solve_jax(model: ForceModel, opts=None):
     from .solvers.compiled import compiled
     from .solvers.problem import Solution
 
-    name, padded, arrays, opts = _single_problem(model, opts or ipm.IPMOptions())
-    exe = compiled(name, solver_fn(model.params, opts), (model.params, opts), arrays)
+    padded, arrays, opts = _single_problem(model, opts or ipm.IPMOptions())
+    exe = compiled(SINGLE_NAME, solver_fn(model.params, opts), (model.params, opts), arrays)
     return Solution(*jax.device_get(exe(*arrays))), padded
 
 
@@ -157,15 +157,19 @@ def _single_plan(model: ForceModel) -> tuple:
     return fit_plan(model, solve_plan(model), m_pad), m_pad, p_pad
 
 
+#: Name of :func:`solve_jax`'s executables (:func:`~stablelego_jax.solvers.compiled.compiled`).
+SINGLE_NAME = "ipm"
+
+
 def _single_problem(model: ForceModel, opts, plan: tuple | None = None):
-    """(executable name, padded model, problem arrays, options for it:
+    """(padded model, problem arrays, options for it:
     :func:`~stablelego_jax.solvers.ipm.options_for`) of :func:`solve_jax`
     (``plan``: :func:`_single_plan`'s, if computed already)."""
     from .solvers import ipm
     from .solvers.problem import plan_problem
 
     padded, prob = plan_problem(model, *(plan or _single_plan(model)))
-    return "ipm", padded, tuple(a for a in prob if a is not None), ipm.options_for(opts, prob)
+    return padded, tuple(a for a in prob if a is not None), ipm.options_for(opts, prob)
 
 
 #: Seconds the JAX solver's first answer in a process costs beyond the
@@ -195,9 +199,9 @@ def auto_solver(model: ForceModel) -> str:
     jax_s = JAX_START_S + plan_seconds(*plan[:2]) + LOAD_S
     if exact_s < jax_s:  # no need to pad the problem for the check below
         return "exact"
-    name, _, arrays, opts = _single_problem(model, ipm.IPMOptions(), plan)
+    _, arrays, opts = _single_problem(model, ipm.IPMOptions(), plan)
     specs = [jax.ShapeDtypeStruct(np.shape(a), np.result_type(a)) for a in arrays]
-    if not available(name, (model.params, opts), specs):
+    if not available(SINGLE_NAME, (model.params, opts), specs):
         jax_s += SINGLE_COMPILE_S - LOAD_S
     return "exact" if exact_s < jax_s else "jax"
 

@@ -836,13 +836,13 @@ def solve_unit(unit: SolveUnit, params: Params, opts, n_dev: int, fallback: bool
     is one problem; where it does not converge, each of its layouts is
     solved alone, with the same compiled shape."""
 
-    def solve_batch(probs, bsz, o):
-        """Solve one batch of problems with options ``o``; returns (solution, seconds)."""
+    def solve_batch(probs, bsz):
+        """Solve one batch of problems; returns (solution, seconds)."""
         size = batch_rung(len(probs), n_dev, bsz)
         probs = probs + [probs[-1]] * (size - len(probs))
         arrays = tuple(a for a in stack_problems(probs) if a is not None)
         n0, t0c = STATS.compiles, STATS.compile_s
-        exe = compiled(BATCH_NAME, batch_solver_fn(params, o, n_dev), (params, o, n_dev), arrays,
+        exe = compiled(BATCH_NAME, batch_solver_fn(params, opts, n_dev), (params, opts, n_dev), arrays,
                        export=n_dev == 1)
         st.compiles += STATS.compiles - n0
         st.compile_s += STATS.compile_s - t0c
@@ -853,7 +853,7 @@ def solve_unit(unit: SolveUnit, params: Params, opts, n_dev: int, fallback: bool
         return sol, dt
 
     if unit.pack:
-        done, dt = _solve_pack(unit, opts, solve_batch)
+        done, dt = _solve_pack(unit, solve_batch)
         if done is not None:
             yield [(i, _settled(a, opts, params, fallback, st)) for i, a in done]
             return
@@ -873,7 +873,7 @@ def solve_unit(unit: SolveUnit, params: Params, opts, n_dev: int, fallback: bool
     bsz = unit.bsz
     for b0 in range(0, len(prepared), bsz):
         sub = prepared[b0: b0 + bsz]
-        sol, dt = solve_batch([pr for _, _, pr in sub], bsz, opts)
+        sol, dt = solve_batch([pr for _, _, pr in sub], bsz)
         done = []
         for j, ((i, lay, model), fm, _) in enumerate(sub):
             a = make_analysis(lay, fm, np.asarray(sol.f[j]), "jax", bool(sol.converged[j]),
@@ -884,7 +884,7 @@ def solve_unit(unit: SolveUnit, params: Params, opts, n_dev: int, fallback: bool
         yield done
 
 
-def _solve_pack(unit: SolveUnit, opts, solve_batch) -> tuple:
+def _solve_pack(unit: SolveUnit, solve_batch) -> tuple:
     """Solve a packed :class:`SolveUnit` (the interior point) as one problem:
     ``([(i, Analysis)], seconds)``, each layout answered from its own
     columns (the forces of a block-diagonal problem are its members' own
@@ -894,7 +894,7 @@ def _solve_pack(unit: SolveUnit, opts, solve_batch) -> tuple:
     stalls holds the others)."""
     pack, cols = pack_models([it[2] for it in unit.items])
     _, prob = plan_problem(pack, unit.key, unit.m_pad, unit.p_pad, unit.c_pad)
-    sol, dt = solve_batch([prob], 1, opts)
+    sol, dt = solve_batch([prob], 1)
     if not bool(sol.converged[0]):
         return None, dt
     f = np.asarray(sol.f[0])
