@@ -19,7 +19,7 @@ from stablelego_jax.generate.procedural import stairs  # noqa: E402
 from stablelego_jax.model import compile_layout  # noqa: E402
 from stablelego_jax.solvers import compiled as C, ipm  # noqa: E402
 from stablelego_jax.solvers.problem import to_problem  # noqa: E402
-from stablelego_jax.analysis import solver_fn  # noqa: E402
+from stablelego_jax.analysis import SINGLE_NAME, solver_fn  # noqa: E402
 
 def maps():
     with open("/proc/self/maps") as fh:
@@ -35,7 +35,7 @@ t0 = time.time()
 for i in range(N):
     pm = model.pad(8, 128 + 8 * i)
     arrays = tuple(a for a in to_problem(pm) if a is not None)
-    exe = C.compiled("ipm", solver_fn(pm.params, opts), (pm.params, opts), arrays, export=export)
+    exe = C.compiled(SINGLE_NAME, solver_fn(pm.params, opts), (pm.params, opts), arrays, export=export)
     jax.block_until_ready(exe(*arrays))
     del exe
     if mode == "gc":

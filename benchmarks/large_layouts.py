@@ -69,7 +69,7 @@ def child(case: str, ldr: str | None, solver: str, plan: str) -> dict:
     """One solve in this process; returns the row."""
     import numpy as np
 
-    from stablelego_jax.analysis import analyze_layout, make_analysis, solver_fn
+    from stablelego_jax.analysis import SINGLE_NAME, analyze_layout, make_analysis, solver_fn
     from stablelego_jax.model import compile_layout
     from stablelego_jax.solvers import ipm
     from stablelego_jax.solvers.compiled import compiled
@@ -94,7 +94,7 @@ def child(case: str, ldr: str | None, solver: str, plan: str) -> dict:
         # as analyze sets it; jax-gram: every layer's step by its Gram product (before session 48)
         opts = ipm.options_for(ipm.IPMOptions(), prob) if solver == "jax" else ipm.IPMOptions()
         t1 = time.perf_counter()
-        exe = compiled("ipm", solver_fn(model.params, opts), (model.params, opts), arrays, export=False)
+        exe = compiled(SINGLE_NAME, solver_fn(model.params, opts), (model.params, opts), arrays, export=False)
         t2 = time.perf_counter()
         sol = exe(*arrays)
         sol[0].block_until_ready()

@@ -26,7 +26,7 @@ sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
 
 import numpy as np  # noqa: E402
 
-from stablelego_jax.analysis import analyze_layout, solver_fn  # noqa: E402
+from stablelego_jax.analysis import SINGLE_NAME, analyze_layout, solver_fn  # noqa: E402
 from stablelego_jax.generate.procedural import cuboid  # noqa: E402
 from stablelego_jax.model import compile_layout  # noqa: E402
 from stablelego_jax.solvers import ipm  # noqa: E402
@@ -50,7 +50,7 @@ def time_cube(k: int) -> dict:
     arrays = tuple(a for a in prob if a is not None)
     opts = ipm.IPMOptions()
     t0 = time.perf_counter()
-    comp = compiled("ipm", solver_fn(model.params, opts), (model.params, opts), arrays)
+    comp = compiled(SINGLE_NAME, solver_fn(model.params, opts), (model.params, opts), arrays)
     tc = time.perf_counter() - t0
     tj, sol = [], None
     for _ in range(3):
