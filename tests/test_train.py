@@ -63,6 +63,39 @@ def test_loss_decreases_and_stability_gradient_reaches_params(tmp_path):
     assert losses[-1] < 0.8 * losses[0]
 
 
+def test_lambda_zero_skips_the_stability_term_with_the_same_loss_and_gradient(tmp_path):
+    """lam 0: a graph without the soft solves, whose loss and gradient are
+    those of the full graph at lam 0 (there: fidelity + bw binarize + 0 x a
+    solved stability term), and a run that logs the term as not computed."""
+    full = _cfg(tmp_path)
+    off = dict(full, lam=0.0)
+    arr = _batch(full)
+    params = T.initial_params(full, 0)
+    bw = np.float64(0.1)
+    with one_blas_thread():
+        probs_fn, _, _, _, grad_full = T.make_fns(full)
+        p = np.asarray(probs_fn(params, arr.x, arr.valid))
+        sub = T.batch_subsets(p, arr.valid, full, np.random.default_rng(0))
+        loss1, aux1, g1 = grad_full(params, np.float64(0.0), bw, arr.x, arr.valid, arr.target, *sub)
+        _, _, _, _, grad_off = T.make_fns(off)
+        loss0, aux0, g0 = grad_off(params, np.float64(0.0), bw, arr.x, arr.valid, arr.target,
+                                   *T.Subset(None, None, None, None))
+    assert float(aux1[2]) > 0.0 and np.isnan(float(aux0[2])) and np.isnan(float(aux0[3]))
+    assert abs(float(loss0) - float(loss1)) <= 1e-12 * abs(float(loss1))
+    np.testing.assert_allclose(float(aux0[0]), float(aux1[0]), rtol=1e-12)
+    for (w0, b0), (w1, b1) in zip(g0, g1):
+        np.testing.assert_allclose(np.asarray(w0), np.asarray(w1), rtol=1e-10, atol=1e-12)
+        np.testing.assert_allclose(np.asarray(b0), np.asarray(b1), rtol=1e-10, atol=1e-12)
+    # a run: history rows log the term as null, the checkpoint is written
+    out = tmp_path / "run0"
+    with one_blas_thread():
+        _, history = T.train(dict(off, steps=2), str(out))
+    rows = [h for h in history if not h.get("eval")]
+    assert rows and all(h["stability"] is None and h["converged"] is None for h in rows)
+    assert all(np.isfinite(h["loss"]) for h in rows)
+    assert (out / "checkpoint.npz").exists()
+
+
 def test_crop_equals_full_grid():
     s = procedural_shape(3, kind="bridge")
     params = net.init_params(jax.random.PRNGKey(1), 8)

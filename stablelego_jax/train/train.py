@@ -19,6 +19,9 @@ Loss per shape (B shapes per step, averaged):
   an overhang), chosen on the host each step (not
   differentiated), compiled with :func:`stablelego_jax.soft.compile_placements`
   and padded to one fixed size, so one jit-compiled ``vmap`` serves every step.
+  With ``lam`` 0 the term is not computed at all (no subsets, no solves:
+  a step costs the network alone; its history logs ``stability`` and
+  ``converged`` as null).
 
 Checkpoints are plain ``.npz`` (params, optimizer state, step, numpy rng
 state, config, history), written atomically to ``OUT/checkpoint.npz`` every
@@ -338,12 +341,14 @@ def make_fns(cfg: dict):
     """(probs_fn, step_fn, opt, terms, grad_fn): jit-compiled forward pass,
     training step ``step_fn(params, opt_state, lam, bw, x, valid, target,
     sub)``, the optimizer, the loss terms ``terms(params, x, valid, target,
-    *sub)`` -> (fidelity, binarize, stability, converged fraction) and
+    *sub)`` -> (fidelity, binarize, stability, converged fraction; the last
+    two NaN, and ``sub``'s fields may be None, when ``cfg["lam"]`` is 0) and
     ``grad_fn(params, lam, bw, *batch)`` -> (loss, terms, grads). Compiled
     once per process for all configs that share the network and loss shape
     (``_GRAPH_KEYS``); ``grad_floor`` and ``brick_weight`` are passed as
     values."""
-    graph = _model_fns(json.dumps({k: cfg[k] for k in _GRAPH_KEYS}, sort_keys=True))
+    # lam 0: a graph without the stability term (its soft solves cost nearly all of a step)
+    graph = _model_fns(json.dumps(dict({k: cfg[k] for k in _GRAPH_KEYS}, stability=cfg["lam"] > 0), sort_keys=True))
     opt, update_fn = _optimizer(json.dumps({k: cfg[k] for k in _OPT_KEYS}, sort_keys=True))
     probs_fn, terms_c, grad_c = graph
     knobs = (np.float64(cfg["grad_floor"]), np.float64(cfg["brick_weight"]))
@@ -421,6 +426,8 @@ def _model_fns(key: str):
         # economy: each placement's probability costs brick_weight
         fid = fid + brick_weight * p_g.reshape(B, -1).sum(1).mean()
         binar = (p * (1.0 - p)).reshape(B, -1).sum(1).mean()
+        if not cfg["stability"]:
+            return fid, binar, jnp.full((), jnp.nan, fid.dtype), jnp.full((), jnp.nan, fid.dtype)
         if cfg["share_scope"] == "subset":
             ps = jnp.take_along_axis(p_g.reshape(B, -1), fi, axis=1) * mask
             w = net.subset_shares(ps, inc, cfg["share_floor"], cfg["share_power"])
@@ -437,7 +444,7 @@ def _model_fns(key: str):
 
     def total(params, lam, bw, floor, brick_weight, *args):
         fid, binar, stab, conv = terms(params, floor, brick_weight, *args)
-        return fid + bw * binar + lam * stab, (fid, binar, stab, conv)
+        return fid + bw * binar + (lam * stab if cfg["stability"] else 0.0), (fid, binar, stab, conv)
 
     @jax.jit
     def grad_fn(params, lam, bw, floor, brick_weight, *args):
@@ -547,8 +554,9 @@ def decode_and_score(params, arrays: Arrays, cfg: dict, probs_fn, chunk: int = 8
 
 def _line(step, total, loss, aux, rate, eta):
     fill = int(24 * step / max(total, 1))
+    stab = "stab off" if aux[2] is None else f"stab {aux[2]:.5f} conv {aux[3]:.2f}"
     return (f"[{'#' * fill}{'.' * (24 - fill)}] {step}/{total} loss {loss:.4f} fid {aux[0]:.4f} "
-            f"bin {aux[1]:.4f} stab {aux[2]:.5f} conv {aux[3]:.2f} | {rate:.2f} steps/s eta {eta:.0f}s")
+            f"bin {aux[1]:.4f} {stab} | {rate:.2f} steps/s eta {eta:.0f}s")
 
 
 @x64
@@ -580,19 +588,26 @@ def train(cfg: dict, out: str, resume: bool = False, log=sys.stderr, max_steps: 
     ev_tr = Arrays([train_shapes[i] for i in sorted(ev_idx)], cfg["crop"], cfg["grid"])
     ev_he = Arrays(held, cfg["crop"], cfg["grid"]) if cfg["eval_heldout"] else None
     lam = np.float64(cfg["lam"])
+    stability = cfg["lam"] > 0
+    print(f"{len(train_shapes)} training shapes ({len(val)} validation, {len(held)} held out), from step {step} "
+          f"of {cfg['steps']}; the first step compiles" + ("" if stability else "; lam 0: no stability term"),
+          file=log, flush=True)
     t0, s0 = time.perf_counter(), step
     done = 0
     with one_blas_thread():
         while step < cfg["steps"] and (max_steps is None or done < max_steps):
             b = rng.choice(len(train_shapes), size=cfg["batch"], replace=False)
             x, valid, target = tr.x[b], tr.valid[b], tr.target[b]
-            p = np.asarray(probs_fn(params, x, valid))
-            sub = batch_subsets(p, valid, cfg, rng, tr.span[b])
+            if stability:
+                p = np.asarray(probs_fn(params, x, valid))
+                sub = batch_subsets(p, valid, cfg, rng, tr.span[b])
+            else:  # no stability term: no subsets
+                sub = Subset(None, None, None, None)
             bw = np.float64(bin_weight(cfg, step))
             params, opt_state, loss, aux = step_fn(params, opt_state, lam, bw, x, valid, target, sub)
             step += 1
             done += 1
-            aux = [float(a) for a in aux]
+            aux = [float(a) for a in aux[:2]] + ([float(a) for a in aux[2:]] if stability else [None, None])
             el = time.perf_counter() - t0
             rate = (step - s0) / el
             if step % cfg["log_every"] == 0 or step == cfg["steps"]:
@@ -602,6 +617,7 @@ def train(cfg: dict, out: str, resume: bool = False, log=sys.stderr, max_steps: 
                       flush=True)
             if step % cfg["eval_every"] == 0 or step == cfg["steps"]:
                 rec = {"step": step, "eval": True}
+                print(f"  evaluating at step {step} (decoded layouts judged by the exact solver)", file=log, flush=True)
                 for name, arr in (("train", ev_tr), ("val", ev_val), ("heldout", ev_he)):
                     if arr is None or not arr.names:
                         continue
