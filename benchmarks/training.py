@@ -1,16 +1,20 @@
 """Issue 6 benchmark: the generator trained with and without the stability loss.
 
     python benchmarks/training.py [--config stablelego_jax/train/configs/default.json]
-        [--lams 0,LAM] [--seeds 0,1,2] [--runs out/training_runs] [--jobs 2]
+        [--lams 0,LAM] [--seeds 0,1,2] [--runs out/training_runs] [--jobs 2] [--refine SECONDS]
+        [--results benchmarks/results]
 
 Trains one generator per (lambda, seed) with ``stablelego train`` (``python -m stablelego_jax train``)
 (``--resume``: finished runs are reused if their stored config matches,
 else it stops with exit 2; interrupted ones continue from their
 checkpoint), at most ``--jobs`` at once, evaluates each on the
 held-out shapes with ``stablelego evaluate`` (exact solver), scores
-the merge heuristic of ``stablelego_jax.generate.voxels`` on the same shapes, and writes
-``benchmarks/results/training.json`` and ``training_curves.png``; prints a
-markdown table. Target (issue 6): the stability term raises the held-out
+the merge heuristic of ``stablelego_jax.generate.voxels`` on the same shapes
+(``--refine SECONDS``: also each run's filled decoding refined per shape by
+``stabilize``'s re-merge rounds, ``evaluate --refine``; issue 19's "generator +
+refinement"), and writes ``RESULTS/training.json`` and
+``RESULTS/training_curves.png`` (``--results``, default
+``benchmarks/results``); prints a markdown table. Target (issue 6): the stability term raises the held-out
 stable fraction by >= 20 percentage points at a cost of at most 0.02 IoU
 (means over the seeds).
 """
@@ -67,6 +71,8 @@ def main(argv=None) -> int:
     ap.add_argument("--runs", default=os.path.join(REPO, "out", "training_runs"))
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--results", default=os.path.join(HERE, "results"))
+    ap.add_argument("--refine", type=float, default=None, metavar="SECONDS",
+                    help="also refine each filled decoding (evaluate --refine SECONDS)")
     a = ap.parse_args(argv)
     lams = [float(x) for x in (a.lams or "0,1000").split(",")]
     seeds = [int(x) for x in a.seeds.split(",")]
@@ -113,6 +119,8 @@ def main(argv=None) -> int:
                 argv_.append("--untrained")  # the network at initialisation, once per seed
             if (lam, s) == (lams[0], seeds[0]):
                 argv_.append("--heuristic")
+            if a.refine is not None:
+                argv_ += ["--refine", str(a.refine)]
             cmds.append((f"evaluate lam={lam:g} seed={s}", argv_, os.path.join(d, "evaluate.log")))
     for name, (rc, wall) in _run_all(cmds, a.jobs).items():
         if rc != 0:
@@ -139,6 +147,10 @@ def main(argv=None) -> int:
         rec = {"lam": lam, "seed": s, "train_wall_s": round(hj["wall_s"], 1), "steps": hj["config"]["steps"]}
         for dec, method in DECODINGS.items():
             rec[dec] = stats([r for r in rows if r["method"] == method])
+        refined = [r for r in rows if r["method"] == "generator_refined"]
+        if refined:
+            rec["refined"] = dict(stats(refined), refine_s=float(np.mean([r.get("refine_s", 0.0) for r in refined])),
+                                  exact_calls=float(np.mean([r.get("exact_calls", 0) for r in refined])))
         per_run.append(rec)
         curves[f"{lam:g}/{s}"] = hj["history"]
     by_lam, target = {}, {}
@@ -149,6 +161,10 @@ def main(argv=None) -> int:
             b[dec] = {k: float(np.mean([r[dec][k] for r in rs])) for k in ("stable_fraction", "mean_iou", "mean_bricks")}
             b[dec]["stable_fraction_per_seed"] = [r[dec]["stable_fraction"] for r in rs]
             b[dec]["mean_iou_per_seed"] = [r[dec]["mean_iou"] for r in rs]
+        if all("refined" in r for r in rs):
+            b["refined"] = {k: float(np.mean([r["refined"][k] for r in rs]))
+                            for k in ("stable_fraction", "mean_iou", "mean_bricks", "refine_s", "exact_calls")}
+            b["refined"]["stable_fraction_per_seed"] = [r["refined"]["stable_fraction"] for r in rs]
         by_lam[f"{lam:g}"] = b
     base, best = by_lam[f"{lams[0]:g}"], by_lam[f"{lams[-1]:g}"]
     vs_heur = {}
@@ -160,6 +176,12 @@ def main(argv=None) -> int:
         if heur:
             vs_heur[dec] = {"stable_gain_pp": round(100 * (best[dec]["stable_fraction"] - heur["stable_fraction"]), 1),
                             "iou_cost": round(heur["mean_iou"] - best[dec]["mean_iou"], 4)}
+    for lam in lams:  # issue 19: the generator (with or without refinement) against the heuristic at IoU 1
+        b = by_lam[f"{lam:g}"]
+        if heur and "refined" in b:
+            vs_heur[f"refined lambda={lam:g}"] = {
+                "stable_gain_pp": round(100 * (b["refined"]["stable_fraction"] - heur["stable_fraction"]), 1),
+                "iou_cost": round(heur["mean_iou"] - b["refined"]["mean_iou"], 4)}
     out = {"config": os.path.relpath(a.config, REPO), "lams": lams, "seeds": seeds, "decodings": DECODINGS,
            "per_run": per_run, "by_lambda": by_lam, "untrained": {
                "per_seed": untrained, **({dec: {k: float(np.mean([u[dec][k] for u in untrained]))
@@ -176,6 +198,17 @@ def main(argv=None) -> int:
         print(f"| lambda={r['lam']:g} | {r['seed']} | {r['strict']['stable_fraction']:.3f} | {r['strict']['mean_iou']:.4f} | "
               f"{r['filled']['stable_fraction']:.3f} | {r['filled']['mean_iou']:.4f} | {r['filled']['mean_bricks']:.1f} | "
               f"{r['train_wall_s']:.0f} |")
+    for r in per_run:
+        if "refined" in r:
+            f = r["refined"]
+            print(f"| lambda={r['lam']:g} + refinement | {r['seed']} | - | - | {f['stable_fraction']:.3f} | "
+                  f"{f['mean_iou']:.4f} | {f['mean_bricks']:.1f} | {f['refine_s']:.1f} s a shape |")
+    for lam in lams:
+        b = by_lam[f"{lam:g}"]
+        if "refined" in b:
+            print(f"| **lambda={lam:g} + refinement, mean** | {len(seeds)} seeds | - | - | "
+                  f"**{b['refined']['stable_fraction']:.3f}** | **{b['refined']['mean_iou']:.4f}** | "
+                  f"{b['refined']['mean_bricks']:.1f} | {b['refined']['refine_s']:.1f} s a shape |")
     for lam in lams:
         b = by_lam[f"{lam:g}"]
         print(f"| **lambda={lam:g}, mean** | {len(seeds)} seeds | **{b['strict']['stable_fraction']:.3f}** | "
@@ -195,6 +228,9 @@ def main(argv=None) -> int:
         if dec in vs_heur:
             v = vs_heur[dec]
             print(f"  vs merge heuristic: {v['stable_gain_pp']:+.1f} pp stable, IoU cost {v['iou_cost']:.4f}")
+    for name, v in vs_heur.items():
+        if name.startswith("refined"):
+            print(f"{name} vs merge heuristic: {v['stable_gain_pp']:+.1f} pp stable, IoU cost {v['iou_cost']:.4f}")
     return 0
 
 

@@ -40,6 +40,29 @@ def test_local_re_merge_makes_a_falling_blob_stand_on_the_same_cells():
     assert r.exact_calls >= 2 and r.soft_calls == 0
 
 
+def test_a_given_start_cover_is_refined_and_a_wrong_one_refused():
+    # the cover of 1x1 bricks falls apart (no knob holds a 1x1 to another side by
+    # side); refined from it, the re-merge rounds reach a cover that stands
+    vox = random_voxel_shape(1, grid=8, kind="boxes")
+    cells = np.argwhere(vox)
+    from stablelego_jax.layout import brick_layout
+
+    ones = brick_layout(cells, np.ones((len(cells), 2), int), source="ones")
+    assert not analyze_layout(ones, solver="exact").stable
+    r = stabilize(vox, StabilizeOptions(seeds=1, gradient=False, rounds=12), source="ones", start=ones)
+    assert r.start is ones and r.method in ("random", "none")
+    assert _covers_exactly(r.layout, vox) and r.bricks_changed > 0
+    assert merit(analyze_layout(r.layout, solver="exact")) < merit(analyze_layout(ones, solver="exact"))
+    # a start that already stands is the answer (this shape's merge stands)
+    good = merge_voxels(vox, seed=0)
+    g = stabilize(vox, StabilizeOptions(seeds=1, gradient=False), start=good)
+    assert g.stable and g.method == "start" and g.bricks_changed == 0 and g.exact_calls == 1
+    # a start that covers other cells
+    with pytest.raises(ValueError, match="shape.b: the start layout does not cover exactly"):
+        stabilize(vox, StabilizeOptions(seeds=1), source="shape.b", start=brick_layout(cells[:-1], np.ones(
+            (len(cells) - 1, 2), int)))
+
+
 @pytest.mark.parametrize("seed", [0, 9])
 def test_screened_covers_change_nothing_but_the_solver_calls(monkeypatch, seed):
     # a cover with more floating bricks than the cover it must beat is set

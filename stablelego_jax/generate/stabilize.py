@@ -126,7 +126,8 @@ class StabilizeOptions:
 @dataclasses.dataclass
 class StabilizeResult:
     """layout: the best cover found (stands iff ``stable``); start: the
-    heuristic merge with seed 0; method: which step found it ("heuristic",
+    heuristic merge with seed 0, or the cover given as ``start``; method:
+    which step found it ("heuristic", "start" (the given cover stands),
     "seed", "gradient", "random", "support" or "none"); bricks_changed: bricks
     of ``layout`` not in ``start`` (same cell and size); exact_calls /
     soft_calls: solver calls; screened: covers set aside without an exact
@@ -406,9 +407,12 @@ class _Gradient:
 
 @x64
 def stabilize(vox: np.ndarray, opts: StabilizeOptions = StabilizeOptions(), source: str = "<voxels>",
-              progress: Callable[[str], None] | None = None) -> StabilizeResult:
+              progress: Callable[[str], None] | None = None, start: Layout | None = None) -> StabilizeResult:
     """A stable exact cover of ``vox`` (X, Y, Z) bool (see the module
-    docstring); brick coordinates are the grid's indices."""
+    docstring); brick coordinates are the grid's indices. ``start``: an
+    exact cover of ``vox`` to begin from instead of the heuristic merge with
+    seed 0 (a generator's decoding to refine; the seeds are still tried
+    after it, ``seeds=1`` for none); ValueError if it covers other cells."""
     t0 = time.perf_counter()
     say = progress or (lambda s: None)
     types = oriented(opts.bricks)
@@ -460,12 +464,21 @@ def stabilize(vox: np.ndarray, opts: StabilizeOptions = StabilizeOptions(), sour
                                screened=calls["screened"])
 
     grad = None
-    start = merge_voxels(vox, seed=0, bricks=opts.bricks, source=source)
+    given = start is not None
+    if given:
+        got = np.zeros(vox.shape, bool)
+        cells = cells_of(start.pos, start.size)[0] if start.n else np.zeros((0, 3), int)
+        inside = ((cells >= 0) & (cells < np.asarray(vox.shape))).all(axis=1)
+        got[tuple(cells[inside].T)] = True
+        if not inside.all() or len(cells) != int(vox.sum()) or not np.array_equal(got, vox):
+            raise ValueError(f"{source}: the start layout does not cover exactly the shape's cells")
+    else:
+        start = merge_voxels(vox, seed=0, bricks=opts.bricks, source=source)
     start_a = check(start, canonical=True)  # the likeliest answer: solved as it is reported
-    best, best_a, how = start, start_a, "heuristic"
-    say(f"heuristic merge: {start.n} bricks, {merit(start_a)[0]} failing")
+    best, best_a, how = start, start_a, "start" if given else "heuristic"
+    say(f"{'start cover' if given else 'heuristic merge'}: {start.n} bricks, {merit(start_a)[0]} failing")
     if start_a.stable:
-        return out(start, start_a, "heuristic", 0)
+        return out(start, start_a, how, 0)
     lost = ungroundable_cells(vox, opts.bricks)
     if lost.any():
         say(f"{int(lost.sum())} cells have no chain of bricks to the ground in any cover: no cover can stand")

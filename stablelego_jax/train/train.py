@@ -532,9 +532,9 @@ def score_layout(layout) -> bool:
 
 
 @x64
-def decode_and_score(params, arrays: Arrays, cfg: dict, probs_fn, chunk: int = 8, fill: bool = False):
-    """Per shape: (stable, iou, n_bricks) of the decoded layouts (``fill``:
-    see :func:`stablelego_jax.train.net.decode`)."""
+def decoded_layouts(params, arrays: Arrays, cfg: dict, probs_fn, chunk: int = 8, fill: bool = False):
+    """Per shape: (layout in the (G, G, G) grid or None when empty, iou) of
+    the network's decoding (``fill``: see :func:`stablelego_jax.train.net.decode`)."""
     from .net import decode, decoded_iou
 
     out = []
@@ -543,9 +543,15 @@ def decode_and_score(params, arrays: Arrays, cfg: dict, probs_fn, chunk: int = 8
         for j in range(len(p)):
             _, pos, size = decode(p[j], cfg["threshold"], fill, arrays.valid[s + j])
             iou = decoded_iou(arrays.target[s + j], pos, size)
-            pos = pos + arrays.offset[s + j]  # back into the (G, G, G) grid
-            out.append((score_layout(layout_of(pos, size)), iou, len(pos)))
+            out.append((layout_of(pos + arrays.offset[s + j], size), iou))  # back into the (G, G, G) grid
     return out
+
+
+def decode_and_score(params, arrays: Arrays, cfg: dict, probs_fn, chunk: int = 8, fill: bool = False):
+    """Per shape: (stable, iou, n_bricks) of the decoded layouts
+    (:func:`decoded_layouts`), judged by the exact solver."""
+    return [(score_layout(lay), iou, 0 if lay is None else lay.n)
+            for lay, iou in decoded_layouts(params, arrays, cfg, probs_fn, chunk, fill)]
 
 
 # --------------------------------------------------------------------------
