@@ -127,7 +127,7 @@ def main(argv=None) -> int:
             print(f"error: {name} failed", file=sys.stderr)
             return 1
     per_run, curves, untrained = [], {}, []
-    heur = None
+    heur = heur_refined = None
 
     def stats(rs):
         return {"n": len(rs), "stable_fraction": float(np.mean([r["stable"] for r in rs])),
@@ -139,6 +139,9 @@ def main(argv=None) -> int:
         h = [r for r in rows if r["method"] == "heuristic"]
         if h:
             heur = stats(h)
+        h = [r for r in rows if r["method"] == "heuristic_refined"]
+        if h:
+            heur_refined = dict(stats(h), refine_s=float(np.mean([r.get("refine_s", 0.0) for r in h])))
         if any(r["method"] == "untrained" for r in rows):
             untrained.append({"seed": s, **{dec: stats([r for r in rows if r["method"] == m.replace("generator", "untrained")])
                                             for dec, m in DECODINGS.items()}})
@@ -187,7 +190,7 @@ def main(argv=None) -> int:
                "per_seed": untrained, **({dec: {k: float(np.mean([u[dec][k] for u in untrained]))
                                                for k in ("stable_fraction", "mean_iou", "mean_bricks")}
                                          for dec in DECODINGS} if untrained else {})},
-           "heuristic": heur, "target": target, "vs_heuristic": vs_heur,
+           "heuristic": heur, "heuristic_refined": heur_refined, "target": target, "vs_heuristic": vs_heur,
            "wall_s_training_this_invocation": round(train_wall, 1), "machine": "2-core x86_64 CPU, no GPU"}
     os.makedirs(a.results, exist_ok=True)
     atomic_write_text(os.path.join(a.results, "training.json"), json.dumps(out, indent=1))
@@ -220,6 +223,10 @@ def main(argv=None) -> int:
     if heur:
         print(f"| merge heuristic | - | - | - | {heur['stable_fraction']:.3f} | {heur['mean_iou']:.4f} | "
               f"{heur['mean_bricks']:.1f} | - |")
+    if heur_refined:
+        print(f"| merge heuristic + refinement | - | - | - | {heur_refined['stable_fraction']:.3f} | "
+              f"{heur_refined['mean_iou']:.4f} | {heur_refined['mean_bricks']:.1f} | "
+              f"{heur_refined['refine_s']:.1f} s a shape |")
     print()
     for dec in DECODINGS:
         t = target[dec]

@@ -182,7 +182,8 @@ def test_evaluate_scores_each_decoding_and_refines_the_filled_one(tmp_path, caps
         assert ref["stable"] >= filled["stable"] and ref["started_stable"] == filled["stable"]
         assert (name, "heuristic") in by and (name, "generator") in by
     err = capsys.readouterr().err
-    assert err.count("refine [") == len(shapes)
+    assert err.count("generator_refined [") == len(shapes) == err.count("heuristic_refined [")
+    assert all(by[(n, "heuristic_refined")]["stable"] >= by[(n, "heuristic")]["stable"] for n in shapes)
     # a refinement budget that is not a positive number of seconds: a usage error, nothing written
     with pytest.raises(SystemExit) as exc:
         main(["evaluate", "--checkpoint", ckpt, "--out", str(tmp_path / "x.jsonl"), "--refine", "0"])

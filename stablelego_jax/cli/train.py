@@ -42,7 +42,8 @@ def add_parsers(sub) -> None:
                    help="also score the same network at initialisation (same config and seed)")
     e.add_argument("--refine", type=_seconds, default=None, metavar="SECONDS",
                    help="also refine each filled decoding with stablelego stabilize's re-merge rounds started from "
-                        "it (exact solves, no heuristic seeds), at most SECONDS a shape: method generator_refined")
+                        "it (exact solves, no heuristic seeds), at most SECONDS a shape: method generator_refined; with "
+                        "--heuristic also the merge refined the same way (heuristic_refined)")
     e.add_argument("--split", choices=SPLITS, default="heldout")
     e.set_defaults(func=cmd_evaluate)
 

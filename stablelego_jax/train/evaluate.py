@@ -19,7 +19,9 @@ added. ``--refine SECONDS`` adds "generator_refined": the filled decoding
 refined per shape by :func:`stablelego_jax.generate.stabilize.stabilize`
 started from it (its random re-merge rounds around the failing bricks, each
 cover judged by the exact solver; no heuristic seeds, no gradient move, at
-most SECONDS a shape): IoU 1, stands by the exact solver or not. The summary
+most SECONDS a shape): IoU 1, stands by the exact solver or not; with
+``--heuristic`` also "heuristic_refined", the same refinement started from
+the merge (the control: what the generator's start adds). The summary
 (stable fraction, mean IoU per method) goes to stdout, a line per shape
 refined to stderr; the file is written atomically.
 """
@@ -65,26 +67,28 @@ def evaluate(ckpt: str, split: str = "heldout", heuristic: bool = False, untrain
                              "seed": cfg["seed"], "step": st, "stable": stable, "iou": round(iou, 6),
                              "n_bricks": nb, "n_cells": int(s.vox.sum())})
     if refine is not None:
-        rows += _refined(params, arr, shapes, cfg, probs_fn, step, refine, log)
+        with one_blas_thread():
+            decoded = [lay for lay, _ in decoded_layouts(params, arr, cfg, probs_fn, fill=True)]
+        rows += _refined("generator_refined", shapes, decoded, refine, log,
+                         {"lam": cfg["lam"], "seed": cfg["seed"], "step": step})
     if heuristic:
-        for s in shapes:
-            lay = merge_voxels(s.vox, source=s.name)
+        merged = [merge_voxels(s.vox, source=s.name) for s in shapes]
+        for s, lay in zip(shapes, merged):
             rows.append({"shape": s.name, "kind": s.kind, "method": "heuristic", "stable": score_layout(lay),
                          "iou": 1.0, "n_bricks": lay.n, "n_cells": int(s.vox.sum())})
+        if refine is not None:  # the control: the same refinement started from the merge
+            rows += _refined("heuristic_refined", shapes, merged, refine, log, {})
     return rows
 
 
-def _refined(params, arr, shapes, cfg, probs_fn, step, seconds, log) -> list[dict]:
-    """Rows "generator_refined": each filled decoding refined by stabilize."""
+def _refined(method, shapes, starts, seconds, log, extra) -> list[dict]:
+    """Rows ``method``: each start cover (a Layout or None) refined by stabilize."""
     from ..generate.stabilize import StabilizeOptions, stabilize
 
     opts = StabilizeOptions(seeds=1, gradient=False, time_s=float(seconds))
-    with one_blas_thread():
-        decoded = decoded_layouts(params, arr, cfg, probs_fn, fill=True)
     rows = []
-    for i, (s, (lay, _)) in enumerate(zip(shapes, decoded)):
-        row = {"shape": s.name, "kind": s.kind, "method": "generator_refined", "lam": cfg["lam"], "seed": cfg["seed"],
-               "step": step, "n_cells": int(s.vox.sum())}
+    for i, (s, lay) in enumerate(zip(shapes, starts)):
+        row = {"shape": s.name, "kind": s.kind, "method": method, **extra, "n_cells": int(s.vox.sum())}
         try:
             if lay is None:
                 raise ValueError("empty decoding")
@@ -96,7 +100,7 @@ def _refined(params, arr, shapes, cfg, probs_fn, step, seconds, log) -> list[dic
                        bricks_changed=r.bricks_changed, exact_calls=r.exact_calls, refine_s=round(r.time_s, 2))
         rows.append(row)
         if log is not None:
-            print(f"refine [{i + 1}/{len(shapes)}] {s.name}: {'stable' if row['stable'] else 'not stable'}"
+            print(f"{method} [{i + 1}/{len(shapes)}] {s.name}: {'stable' if row['stable'] else 'not stable'}"
                   + (f" ({row['refine_s']} s, {row['exact_calls']} exact solves)" if "refine_s" in row else ""),
                   file=log, flush=True)
     return rows
