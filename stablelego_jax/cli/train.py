@@ -3,12 +3,12 @@
 loss, and scoring it with the exact solver)."""
 from __future__ import annotations
 
-import argparse
 import os
 
 __all__ = ["add_parsers", "cmd_train", "cmd_evaluate"]
 
 from ..train import CONFIGS
+from .common import positive_seconds
 from ..train.shapes import SPLITS
 
 
@@ -40,7 +40,7 @@ def add_parsers(sub) -> None:
     e.add_argument("--heuristic", action="store_true", help="also score the merge heuristic on the same shapes")
     e.add_argument("--untrained", action="store_true",
                    help="also score the same network at initialisation (same config and seed)")
-    e.add_argument("--refine", type=_seconds, default=None, metavar="SECONDS",
+    e.add_argument("--refine", type=positive_seconds, default=None, metavar="SECONDS",
                    help="also refine each filled decoding with stablelego stabilize's re-merge rounds started from "
                         "it (exact solves, no heuristic seeds), at most SECONDS a shape: method generator_refined; with "
                         "--heuristic also the merge refined the same way (heuristic_refined)")
@@ -59,12 +59,3 @@ def cmd_evaluate(args) -> int:
 
     return run(args.checkpoint, args.out, args.split, args.heuristic, args.untrained, args.refine)
 
-
-def _seconds(text: str) -> float:
-    try:
-        v = float(text)
-    except ValueError:
-        v = -1.0
-    if not v > 0 or v != v or v == float("inf"):
-        raise argparse.ArgumentTypeError(f"need a positive number of seconds, got {text!r}")
-    return v

@@ -465,12 +465,11 @@ def stabilize(vox: np.ndarray, opts: StabilizeOptions = StabilizeOptions(), sour
 
     grad = None
     given = start is not None
-    if given:
-        got = np.zeros(vox.shape, bool)
-        cells = cells_of(start.pos, start.size)[0] if start.n else np.zeros((0, 3), int)
-        inside = ((cells >= 0) & (cells < np.asarray(vox.shape))).all(axis=1)
-        got[tuple(cells[inside].T)] = True
-        if not inside.all() or len(cells) != int(vox.sum()) or not np.array_equal(got, vox):
+    if given:  # a Layout has no overlaps: it covers vox exactly when its cells are vox's
+        v, lo = layout_voxels(start)
+        hi = lo + np.asarray(v.shape)
+        if (lo < 0).any() or (hi > np.asarray(vox.shape)).any() or int(v.sum()) != int(vox.sum()) or \
+                not np.array_equal(vox[tuple(slice(a, b) for a, b in zip(lo, hi))], v):
             raise ValueError(f"{source}: the start layout does not cover exactly the shape's cells")
     else:
         start = merge_voxels(vox, seed=0, bricks=opts.bricks, source=source)

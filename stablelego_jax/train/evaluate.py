@@ -38,7 +38,7 @@ from ..blas import one_blas_thread
 from ..files import atomic_write_text
 from ..generate.voxels import merge_voxels
 from ..runtime import x64
-from .train import (Arrays, decode_and_score, decoded_layouts, initial_params, load_checkpoint, make_fns, score_layout,
+from .train import (Arrays, decoded_layouts, initial_params, load_checkpoint, make_fns, score_decoded, score_layout,
                     split_shapes)
 
 __all__ = ["evaluate", "summary", "run"]
@@ -61,15 +61,16 @@ def evaluate(ckpt: str, split: str = "heldout", heuristic: bool = False, untrain
     for name, prm, st in nets:
         for method, fill in ((name, False), (name + "_filled", True)):
             with one_blas_thread():
-                res = decode_and_score(prm, arr, cfg, probs_fn, fill=fill)
-            for s, (stable, iou, nb) in zip(shapes, res):
+                decoded = decoded_layouts(prm, arr, cfg, probs_fn, fill=fill)
+                scored = score_decoded(decoded)
+            if method == "generator_filled":
+                filled = [lay for lay, _ in decoded]  # the starts of --refine
+            for s, (stable, iou, nb) in zip(shapes, scored):
                 rows.append({"shape": s.name, "kind": s.kind, "method": method, "lam": cfg["lam"],
                              "seed": cfg["seed"], "step": st, "stable": stable, "iou": round(iou, 6),
                              "n_bricks": nb, "n_cells": int(s.vox.sum())})
     if refine is not None:
-        with one_blas_thread():
-            decoded = [lay for lay, _ in decoded_layouts(params, arr, cfg, probs_fn, fill=True)]
-        rows += _refined("generator_refined", shapes, decoded, refine, log,
+        rows += _refined("generator_refined", shapes, filled, refine, log,
                          {"lam": cfg["lam"], "seed": cfg["seed"], "step": step})
     if heuristic:
         merged = [merge_voxels(s.vox, source=s.name) for s in shapes]

@@ -547,11 +547,15 @@ def decoded_layouts(params, arrays: Arrays, cfg: dict, probs_fn, chunk: int = 8,
     return out
 
 
+def score_decoded(decoded) -> list:
+    """Per shape: (stable, iou, n_bricks) of :func:`decoded_layouts`'s
+    layouts, judged by the exact solver."""
+    return [(score_layout(lay), iou, 0 if lay is None else lay.n) for lay, iou in decoded]
+
+
 def decode_and_score(params, arrays: Arrays, cfg: dict, probs_fn, chunk: int = 8, fill: bool = False):
-    """Per shape: (stable, iou, n_bricks) of the decoded layouts
-    (:func:`decoded_layouts`), judged by the exact solver."""
-    return [(score_layout(lay), iou, 0 if lay is None else lay.n)
-            for lay, iou in decoded_layouts(params, arrays, cfg, probs_fn, chunk, fill)]
+    """:func:`score_decoded` of :func:`decoded_layouts`."""
+    return score_decoded(decoded_layouts(params, arrays, cfg, probs_fn, chunk, fill))
 
 
 # --------------------------------------------------------------------------
