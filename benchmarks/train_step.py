@@ -1,15 +1,18 @@
 """Compile time and time per step of the generator's training step.
 
     python benchmarks/train_step.py [--config stablelego_jax/train/configs/default.json]
-        [--steps 12] [--lam 1000] [--mesh-dir DIR|none] [--json]
+        [--steps 12] [--lam 1000] [--mesh-dir DIR|none] [--solves each|batch] [--json]
 
 Builds the training data of the config (``stablelego_jax.train.train.dataset``),
 then runs the training loop's own step (``make_fns``: forward pass, subsets
 of placements, loss + gradient with the soft interior point, optimizer
 update) on batches drawn as ``train`` draws them. Reports the first step
 (tracing and compiling the step included) and the median of the others, in
-seconds, and the process's peak resident memory. Run two code versions one
-after the other on the quiet machine to compare them.
+seconds, and the process's peak resident memory; with ``stability_solves``
+"each" also the solver executables compiled (or loaded from disk) and the
+seconds that took. ``--solves`` overrides the config's ``stability_solves``.
+Run two code versions one after the other on the quiet machine to compare
+them.
 """
 from __future__ import annotations
 
@@ -28,6 +31,7 @@ sys.path.insert(0, REPO)
 
 from stablelego_jax.blas import one_blas_thread  # noqa: E402
 from stablelego_jax.runtime import x64  # noqa: E402
+from stablelego_jax.solvers.compiled import STATS  # noqa: E402
 from stablelego_jax.train import train as T  # noqa: E402
 
 
@@ -54,7 +58,9 @@ def measure(cfg: dict, steps: int, lam: float) -> dict:
             times.append(time.perf_counter() - t0)
             print(f"step {step + 1}/{steps}: {times[-1]:.3f} s, loss {loss:.6f}", file=sys.stderr, flush=True)
     return {"first_step_s": round(times[0], 3), "step_s": round(float(np.median(times[1:])), 4),
-            "loss": loss, "shapes": len(shapes)}
+            "steps_s": [round(t, 3) for t in times], "loss": loss, "shapes": len(shapes),
+            "solves": cfg["stability_solves"], "solver_compiles": STATS.compiles,
+            "solver_compile_s": round(STATS.compile_s, 2)}
 
 
 def main(argv=None) -> int:
@@ -64,12 +70,18 @@ def main(argv=None) -> int:
     ap.add_argument("--lam", type=float, default=1000.0, help="weight of the stability term")
     ap.add_argument("--mesh-dir", default=None,
                     help="the config's mesh_dir instead (none: procedural shapes only), e.g. on another machine")
+    ap.add_argument("--solves", choices=("each", "batch"), default=None,
+                    help="how the batch's stability subsets are solved (default: the config's)")
     ap.add_argument("--json", action="store_true", help="print one JSON object")
     a = ap.parse_args(argv)
     if a.steps < 2:
         ap.error("--steps must be at least 2")
     # "" (not None, which load_config ignores as an override): no mesh folder
     over = {} if a.mesh_dir is None else {"mesh_dir": "" if a.mesh_dir == "none" else a.mesh_dir}
+    if a.solves is not None:
+        over["stability_solves"] = a.solves
+    # the config's lam too: lam 0 compiles a graph without the stability term (train.make_fns)
+    over["lam"] = a.lam
     cfg = T.load_config(a.config, **over)
     out = dict(config=os.path.relpath(a.config, REPO), steps=a.steps, lam=a.lam, **measure(cfg, a.steps, a.lam))
     out["peak_mb"] = round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, 1)

@@ -458,6 +458,31 @@ def test_small_soft_problems_of_one_brick_rung_share_one_shape():
     np.testing.assert_allclose(losses[0], losses[1], rtol=1e-7)
 
 
+def test_plan_soft_shared_gives_the_rungs_one_cut_shape():
+    """``shared=True`` (training's subsets: shapes that recur over many
+    problems, each solved once): the shape the rung shares whatever
+    ``calls`` (never a fitted one), and a layered problem always cut, so one
+    executable serves the rung; a dense problem stays uncut."""
+    from stablelego_jax.layout import brick_layout
+    from stablelego_jax.solvers.problem import cut_layers, layer_soft, plan_soft, soft_bucket
+
+    towers = [compile_soft(cuboid(4, 4, k)).problem for k in (12, 11)]
+    planned = [plan_soft(t, shared=True) for t in towers]
+    assert {q.layers.shape for q in planned} == {(12, 16)}
+    assert len({(q.mass.shape[0], q.col_kind.shape[0], q.group.shape[1], len(q.chunk)) for q in planned}) == 1
+    assert all(q.cut is not None for q in planned)
+    np.testing.assert_array_equal(planned[1].cut, cut_layers(planned[1]).cut)
+    assert planned[1].cut.tolist() == [16] * 11 + [0]
+    # many solves of one problem fit it (its own 11 layers); shared keeps the rung's shape
+    assert plan_soft(towers[1], calls=10 ** 6).layers.shape == (11, 16)
+    big = plan_soft(towers[1], calls=10 ** 6, shared=True)
+    t = towers[1]
+    assert big.layers.shape == (12, 16) and big.col_kind.shape[0] == soft_bucket(
+        t.mass.shape[0], t.col_kind.shape[0], t.group.shape[1], (12, 16), len(layer_soft(t).chunk))[1]
+    dense = plan_soft(compile_soft(brick_layout([(0, 0, 0), (0, 0, 1)], [(2, 2), (2, 2)])).problem, shared=True)
+    assert dense.layers is None and dense.cut is None
+
+
 def test_plan_soft_cuts_layers_when_many_solves_pay_for_the_branches():
     """A layered problem whose layers are not full (a tower of unit bricks
     narrowing from 6 x 6 to 4 x 4 to 2 x 2, four layers each): many solves

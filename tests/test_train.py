@@ -96,6 +96,41 @@ def test_lambda_zero_skips_the_stability_term_with_the_same_loss_and_gradient(tm
     assert (out / "checkpoint.npz").exists()
 
 
+def test_subsets_solved_one_at_a_time_give_the_batched_loss_and_gradient(tmp_path):
+    """stability_solves "each" (each subset on its own rung of the ladder,
+    its own compiled solve) and "batch" (one padded shape under vmap): the
+    same subsets, the same loss terms and gradient to rounding; the
+    problems of "each" hold the subset's bricks first, then padding."""
+    each, batch = _cfg(tmp_path), _cfg(tmp_path, stability_solves="batch")
+    assert each["stability_solves"] == "each"  # the default
+    arr = _batch(each, kinds=("cantilever", "tee"))
+    params = T.initial_params(each, 0)
+    lam, bw = np.float64(each["lam"]), np.float64(0.1)
+    out = {}
+    with one_blas_thread():
+        for name, cfg in (("each", each), ("batch", batch)):
+            probs_fn, _, _, terms, grad_fn = T.make_fns(cfg)
+            p = np.asarray(probs_fn(params, arr.x, arr.valid))
+            sub = T.batch_subsets(p, arr.valid, cfg, np.random.default_rng(0), arr.span)
+            out[name] = (sub, grad_fn(params, lam, bw, arr.x, arr.valid, arr.target, *sub),
+                         terms(params, arr.x, arr.valid, arr.target, *sub))
+    (se, (le, ae, ge), te), (sb, (lb, ab, gb), tb) = out["each"], out["batch"]
+    np.testing.assert_array_equal(se.fi, sb.fi)
+    assert isinstance(se.prob, tuple) and len(se.prob) == 2
+    for j, prob in enumerate(se.prob):
+        n = int(se.mask[j].sum())
+        assert prob.mass.shape[0] >= n and np.asarray(prob.brick_mask)[:n].all()
+        assert not np.asarray(prob.brick_mask)[n:].any()
+    assert float(ae[2]) > 0.0 and float(ae[3]) == 1.0
+    np.testing.assert_allclose(float(le), float(lb), rtol=1e-9)
+    np.testing.assert_allclose([float(a) for a in ae], [float(a) for a in ab], rtol=1e-9)
+    np.testing.assert_allclose([float(a) for a in te], [float(a) for a in ae], rtol=1e-9)
+    scale = max(float(jnp.abs(w).max()) for w, _ in gb)
+    for (w1, b1), (w2, b2) in zip(ge, gb):
+        np.testing.assert_allclose(np.asarray(w1), np.asarray(w2), rtol=1e-7, atol=1e-9 * scale)
+        np.testing.assert_allclose(np.asarray(b1), np.asarray(b2), rtol=1e-7, atol=1e-9 * scale)
+
+
 def test_crop_equals_full_grid():
     s = procedural_shape(3, kind="bridge")
     params = net.init_params(jax.random.PRNGKey(1), 8)
@@ -360,15 +395,18 @@ def test_training_without_optax_is_a_clear_error_and_writes_nothing(tmp_path):
 
 
 def test_training_on_a_pool_that_would_hang_is_a_clear_error(tmp_path, capsys, monkeypatch):
-    """Training solves its batch under vmap: on a jaxlib whose batched LAPACK
-    calls deadlock a larger XLA pool (stablelego_jax.blas), a pool of 2 is a
-    one-line error (exit 2) and nothing is written."""
+    """Training with ``stability_solves`` "batch" solves its batch under vmap:
+    on a jaxlib whose batched LAPACK calls deadlock a larger XLA pool
+    (stablelego_jax.blas), a pool of 2 is a one-line error (exit 2) and
+    nothing is written."""
     from stablelego_jax.blas import lapack_pool_deadlock
 
     if not lapack_pool_deadlock():
         pytest.skip("this jaxlib's batched LAPACK calls do not deadlock a pool")
     monkeypatch.setenv("PJRT_NPROC", "2")  # what a process with a 2-thread pool would have
-    assert main(["train", "--steps", "1", "--out", str(tmp_path / "o")]) == 2
+    cfg = tmp_path / "batch.json"
+    cfg.write_text(json.dumps({"stability_solves": "batch"}))
+    assert main(["train", "--config", str(cfg), "--steps", "1", "--out", str(tmp_path / "o")]) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "deadlock" in err and "PJRT_NPROC" in err
     assert not (tmp_path / "o").exists()
@@ -377,9 +415,10 @@ def test_training_on_a_pool_that_would_hang_is_a_clear_error(tmp_path, capsys, m
 def test_layered_subsets_give_the_dense_loss_and_gradient(tmp_path):
     # the same placements solved by the block-tridiagonal factorisation
     # (layers x slots) instead of one dense block: the same stability term
-    # and gradient (one interior point, two factorisations)
-    dense = _cfg(tmp_path)
-    layered = _cfg(tmp_path, layers=6, slots=8, chunk_pad=64)
+    # and gradient (one interior point, two factorisations); the config's
+    # fixed padding, solved as one batch
+    dense = _cfg(tmp_path, stability_solves="batch")
+    layered = _cfg(tmp_path, stability_solves="batch", layers=6, slots=8, chunk_pad=64)
     arr = _batch(dense)
     params = T.initial_params(dense, 0)
     out = {}

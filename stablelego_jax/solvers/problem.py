@@ -443,7 +443,7 @@ def soft_bucket(n: int, m: int, p: int, layers: tuple | None = None, chunks: int
             max(rung(chunks, MIN_CHUNKS), rung(SOFT_CHUNKS_PER_SLOT * slots, MIN_CHUNKS)))
 
 
-def plan_soft(prob: SoftProblem, calls: int = 1) -> SoftProblem:
+def plan_soft(prob: SoftProblem, calls: int = 1, shared: bool = False) -> SoftProblem:
     """The problem padded to the ladder (:func:`pad_soft`), layered
     (:func:`layer_soft`) when :func:`soft_plan` says that is cheaper; padded
     further, to the one shape its rung shares (:func:`soft_bucket`: the
@@ -468,7 +468,14 @@ def plan_soft(prob: SoftProblem, calls: int = 1) -> SoftProblem:
     at its own size) when the time that saves over ``calls`` solves
     (:func:`cut_saving`) exceeds the compile of its sizes
     (:data:`CUT_BRANCH_S` each). The same bunny, fitted: 9.6-10.5 s
-    against 10.6-11.5 s (session 42)."""
+    against 10.6-11.5 s (session 42).
+
+    ``shared`` (``calls`` then unused): always the shape its rung shares,
+    never a fitted one, and a layered problem always cut, so that one
+    executable serves every problem of the rung: for a caller whose shapes
+    recur over many problems, each solved once (training's stability
+    subsets: a cut solve took 0.65x the time of an uncut one there, for
+    5.5 s more compile a shape; BENCHMARKS.md, issue 19, session 55)."""
 
     def up(k, q):
         return -(-k // q) * q
@@ -482,26 +489,26 @@ def plan_soft(prob: SoftProblem, calls: int = 1) -> SoftProblem:
     else:
         ladder, fit = ("dense", shape[0]), ("dense", fshape[0])
     saving = calls * (plan_seconds(ladder, shape[1], SOFT_SOLVES) - plan_seconds(fit, fshape[1], SOFT_SOLVES))
-    fitted = saving > SOFT_COMPILE_S
+    fitted = saving > SOFT_COMPILE_S and not shared
     if fit[0] == "layered":
         prob = layer_soft(prob, *(fit if fitted else ladder)[1:])
     # chunks: the ladder's rungs are multiples of 8, so 8 never pads more
     c_pad = up(len(prob.chunk), 8) if fitted and prob.chunk is not None else None
     if not fitted:
         c_own = 0 if prob.chunk is None else len(prob.chunk)
-        shared = soft_bucket(n, m, P, None if prob.layers is None else prob.layers.shape, c_own)
+        bucket = soft_bucket(n, m, P, None if prob.layers is None else prob.layers.shape, c_own)
         # priced as columns: the padded columns, and a padded column chunk as one column
         # (with the padded bricks and contact slots, that matched three layered problems'
         # measured extra time within 20%: BENCHMARKS.md, session 35)
-        dc = 0 if shared[3] is None else shared[3] - rung(c_own, MIN_CHUNKS)
-        extra = calls * (plan_seconds(ladder, shared[1] + dc, SOFT_SOLVES)
+        dc = 0 if bucket[3] is None else bucket[3] - rung(c_own, MIN_CHUNKS)
+        extra = calls * (plan_seconds(ladder, bucket[1] + dc, SOFT_SOLVES)
                          - plan_seconds(ladder, shape[1], SOFT_SOLVES))
-        if extra <= SOFT_SHARE * SOFT_COMPILE_S:
-            shape, c_pad = shared[:3], shared[3]
+        if extra <= SOFT_SHARE * SOFT_COMPILE_S or shared:
+            shape, c_pad = bucket[:3], bucket[3]
     prob = pad_soft(prob, *(fshape if fitted else shape), c_pad=c_pad)
     if prob.layers is not None:
         cut = cut_layers(prob)
-        if calls * cut_saving(cut) > CUT_BRANCH_S * len(layer_cuts(prob.layers.shape[1])):
+        if shared or calls * cut_saving(cut) > CUT_BRANCH_S * len(layer_cuts(prob.layers.shape[1])):
             return cut
     return prob
 

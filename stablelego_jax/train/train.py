@@ -17,8 +17,20 @@ Loss per shape (B shapes per step, averaged):
   (:func:`stablelego_jax.train.net.existence_weights`): the placements decoded now plus the strongest competing
   ones (and a few random placements that reach from a supported cell over
   an overhang), chosen on the host each step (not
-  differentiated), compiled with :func:`stablelego_jax.soft.compile_placements`
-  and padded to one fixed size, so one jit-compiled ``vmap`` serves every step.
+  differentiated) and compiled with :func:`stablelego_jax.soft.compile_placements`.
+  ``stability_solves`` says how a batch's subsets are solved: ``"each"``
+  (the default), one at a time, each padded to its own rung of the size
+  ladder (:func:`~stablelego_jax.solvers.problem.plan_soft`: dense or
+  layered, whichever factorises more cheaply), one compile per rung reused
+  by every later step and run (the disk cache of
+  :func:`~stablelego_jax.solvers.compiled.compiled`); or ``"batch"``, all
+  padded to the config's one fixed size (``n_pad``, ``m_pad``, ``layers``
+  x ``slots``, ...) and solved in one jit-compiled ``vmap``, one compile
+  for the run. The same loss and gradient to rounding. On a CPU a
+  ``vmap``-ed batch runs every problem at the padded size until the last
+  has converged: at full scale (``configs/full_scale.json``) a step's
+  stability term took 138 s batched and about 10 s one at a time
+  (BENCHMARKS.md, issue 19, session 55).
   With ``lam`` 0 the term is not computed at all (no subsets, no solves:
   a step costs the network alone; its history logs ``stability`` and
   ``converged`` as null).
@@ -45,7 +57,8 @@ from ..files import atomic_write, atomic_write_text
 from ..layout import brick_layout, cells_of
 from ..runtime import x64
 from ..soft import compile_placements
-from ..solvers.problem import cut_layers, layer_soft, pad_soft, soft_layer_plan, stack_soft
+from ..solvers.compiled import compiled
+from ..solvers.problem import cut_layers, layer_soft, pad_soft, plan_soft, soft_layer_plan, stack_soft
 from .shapes import PROCEDURAL
 
 DEFAULTS = {
@@ -97,7 +110,12 @@ DEFAULTS = {
     "eval_train": 32,
     "eval_heldout": True,
     "log_every": 10,
+    "stability_solves": "each",
 }
+
+#: Config keys that change how the loss is computed, not its value: a
+#: checkpoint resumes, and a stored run is reused, whatever they were.
+HOW_KEYS = ("stability_solves",)
 
 
 class ConfigError(ValueError):
@@ -143,7 +161,8 @@ def load_config(path: str, **overrides) -> dict:
     for k, allowed in (("subset_base", ("strict", "filled")), ("share_scope", ("all", "subset")),
                        ("procedural", PROCEDURAL),
                        ("random_pool", ("span", "valid")),
-                        ("lr_schedule", ("constant", "cosine"))):
+                        ("lr_schedule", ("constant", "cosine")),
+                       ("stability_solves", ("each", "batch"))):
         if cfg[k] not in allowed:
             raise ConfigError(f"{path}: config key {k!r} must be one of {', '.join(allowed)}, got {cfg[k]!r}")
     if cfg["lam"] < 0 or not 0 < cfg["threshold"] <= 1:
@@ -185,8 +204,9 @@ def dataset(cfg: dict, validation: bool = False):
 
 
 def config_diff(stored: dict, cfg: dict, ignore=()) -> list[str]:
-    """The keys of ``cfg`` (sorted) whose value in ``stored`` differs, except ``ignore``."""
-    return sorted(k for k in cfg if k not in ignore and stored.get(k) != cfg[k])
+    """The keys of ``cfg`` (sorted) whose value in ``stored`` differs, except
+    ``ignore`` and :data:`HOW_KEYS`."""
+    return sorted(k for k in cfg if k not in ignore and k not in HOW_KEYS and stored.get(k) != cfg[k])
 
 
 def split_shapes(cfg: dict, split: str):
@@ -227,7 +247,11 @@ class Subset(NamedTuple):
     """One shape's stability subset (or a batch of them, stacked):
     fi (n_pad,) flat placement indices into (X, Y, Z, K), mask (n_pad,) real
     slots, inc (c_pad, n_pad) float 0/1 cell incidence (which of the
-    subset's cells each placement covers), prob the padded SoftProblem."""
+    subset's cells each placement covers), prob the padded SoftProblem
+    (stacked for a batch; with ``stability_solves`` "each", a shape's
+    problem on its own rung of the ladder, and a tuple of them for a
+    batch). The problem's first bricks are the subset's, in ``fi``'s
+    order."""
 
     fi: np.ndarray
     mask: np.ndarray
@@ -250,7 +274,9 @@ def select_subset(p: np.ndarray, valid: np.ndarray, cfg: dict, rng: np.random.Ge
     that reach from a supported cell into an overhang; all valid ones when
     None or when ``random_pool`` is "valid"), and drops from the end until the compiled problem fits
     (n_pad, m_pad, p_pad, c_pad; layered also layers, slots per layer and
-    column chunks), keeping at least the competitors' share free.
+    column chunks), keeping at least the competitors' share free. The
+    problem is then padded to that fixed size, or with ``stability_solves``
+    "each" planned on its own (:func:`~stablelego_jax.solvers.problem.plan_soft`).
     """
     from .net import MASS, TYPES, decode
 
@@ -276,8 +302,8 @@ def select_subset(p: np.ndarray, valid: np.ndarray, cfg: dict, rng: np.random.Ge
         prob = compile_placements(pos, size, MASS[k])
         if (prob.col_kind.shape[0] <= cfg["m_pad"] and prob.group.shape[1] <= cfg["p_pad"]
                 and len(ucells) <= cfg["c_pad"]):
-            prob = _layered(prob, cfg) if cfg["layers"] else prob
-            if prob is not None:
+            fixed = _layered(prob, cfg) if cfg["layers"] else prob
+            if fixed is not None:
                 break
         chosen = chosen[: max(len(chosen) - 4, 1)]
     n = len(chosen)
@@ -287,8 +313,10 @@ def select_subset(p: np.ndarray, valid: np.ndarray, cfg: dict, rng: np.random.Ge
     mask[:n] = True
     inc = np.zeros((cfg["c_pad"], cfg["n_pad"]))
     inc[np.ravel(cell_id), owner] = 1.0
+    if cfg["stability_solves"] == "each":
+        return Subset(fi, mask, inc, plan_soft(prob, shared=True))
     # chunk_pad pads a layered problem's column chunks (a dense one has none)
-    return Subset(fi, mask, inc, pad_soft(prob, cfg["n_pad"], cfg["m_pad"], cfg["p_pad"], c_pad=cfg["chunk_pad"]))
+    return Subset(fi, mask, inc, pad_soft(fixed, cfg["n_pad"], cfg["m_pad"], cfg["p_pad"], c_pad=cfg["chunk_pad"]))
 
 
 def _layered(prob, cfg: dict):
@@ -306,16 +334,20 @@ def batch_subsets(p: np.ndarray, valid: np.ndarray, cfg: dict, rng: np.random.Ge
     """:func:`select_subset` of each shape of a batch (p, valid, span:
     (B, X, Y, Z, K)), stacked into one Subset of (B, ...) arrays; layered
     (``layers`` > 0), ``prob.cut`` is one (L,) array for the whole batch:
-    each layer's most used slots over its shapes."""
+    each layer's most used slots over its shapes. With ``stability_solves``
+    "each", ``prob`` is the tuple of the shapes' problems."""
 
     sub = [select_subset(p[j], valid[j], cfg, rng, None if span is None else span[j]) for j in range(len(p))]
+    stacked = Subset(*(np.stack([getattr(s, f) for s in sub]) for f in ("fi", "mask", "inc")), None)
+    if cfg["stability_solves"] == "each":
+        return stacked._replace(prob=tuple(s.prob for s in sub))
     prob = stack_soft([s.prob for s in sub])
     if cfg["layers"]:
         # each layer factored at the most slots any shape of the batch uses there (one
         # (L,) cut for the batch, so one branch runs; a cut per shape would run every
         # branch under vmap): layers above every shape's height cost nothing
         prob = prob._replace(cut=np.max([cut_layers(s.prob).cut for s in sub], axis=0).astype(np.int32))
-    return Subset(*(np.stack([getattr(s, f) for s in sub]) for f in ("fi", "mask", "inc")), prob)
+    return stacked._replace(prob=prob)
 
 
 # --------------------------------------------------------------------------
@@ -346,9 +378,13 @@ def make_fns(cfg: dict):
     ``grad_fn(params, lam, bw, *batch)`` -> (loss, terms, grads). Compiled
     once per process for all configs that share the network and loss shape
     (``_GRAPH_KEYS``); ``grad_floor`` and ``brick_weight`` are passed as
-    values."""
+    values. With ``stability_solves`` "each" (and ``lam`` > 0), ``terms``
+    and ``grad_fn`` are Python functions around jitted pieces: the
+    subsets' weights, each subset's solve (:func:`solve_subsets`) and the
+    network's gradient through the weights."""
     # lam 0: a graph without the stability term (its soft solves cost nearly all of a step)
-    graph = _model_fns(json.dumps(dict({k: cfg[k] for k in _GRAPH_KEYS}, stability=cfg["lam"] > 0), sort_keys=True))
+    graph = _model_fns(json.dumps(dict({k: cfg[k] for k in _GRAPH_KEYS}, stability=cfg["lam"] > 0,
+                                       solves=cfg["stability_solves"]), sort_keys=True))
     opt, update_fn = _optimizer(json.dumps({k: cfg[k] for k in _OPT_KEYS}, sort_keys=True))
     probs_fn, terms_c, grad_c = graph
     knobs = (np.float64(cfg["grad_floor"]), np.float64(cfg["brick_weight"]))
@@ -413,27 +449,40 @@ def _model_fns(key: str):
     def probs_fn(params, x, valid):
         return net.probabilities(params, x, valid, dil, cfg["logit_bound"])
 
-    def terms(params, floor, brick_weight, x, valid, target, fi, mask, inc, prob):
+    def forward(params, floor, x, valid):
+        """(p, p_g, coverage) of a batch: the placements' probabilities, the
+        same values with d p / d logit = p (1 - p) + grad_floor (a saturated
+        placement can still be moved), and the cells' coverage by p_g."""
         logits = net.logits(params, x, dil, cfg["logit_bound"])
         p = jnp.where(valid, jax.nn.sigmoid(logits), 0.0)  # = net.probabilities, sharing the logits
-        # the same values, with d p / d logit = p (1 - p) + grad_floor in the
-        # fidelity and stability terms: a saturated placement can still be moved
         p_g = p + floor * jnp.where(valid, logits - jax.lax.stop_gradient(logits), 0.0)
+        return p, p_g, net.coverage(p_g)
+
+    def shape_terms(params, floor, brick_weight, x, valid, target):
+        """(fidelity, binarize, p_g, coverage) of a batch."""
+        p, p_g, cov = forward(params, floor, x, valid)
         B = p.shape[0]
-        cov = net.coverage(p_g)
         err = jnp.where(cov < 1.0, cfg["under_weight"], 1.0) * (cov - 1.0) ** 2
         fid = jnp.where(target, err, 0.0).reshape(B, -1).sum(1).mean()
         # economy: each placement's probability costs brick_weight
         fid = fid + brick_weight * p_g.reshape(B, -1).sum(1).mean()
         binar = (p * (1.0 - p)).reshape(B, -1).sum(1).mean()
-        if not cfg["stability"]:
-            return fid, binar, jnp.full((), jnp.nan, fid.dtype), jnp.full((), jnp.nan, fid.dtype)
+        return fid, binar, p_g, cov
+
+    def subset_weights(p_g, cov, fi, mask, inc):
+        """(B, n_pad) existence weights of the subsets' placements."""
+        B = p_g.shape[0]
         if cfg["share_scope"] == "subset":
             ps = jnp.take_along_axis(p_g.reshape(B, -1), fi, axis=1) * mask
-            w = net.subset_shares(ps, inc, cfg["share_floor"], cfg["share_power"])
-        else:
-            wts = net.existence_weights(p_g, cov, cfg["share_floor"])
-            w = jnp.take_along_axis(wts.reshape(B, -1), fi, axis=1) * mask
+            return net.subset_shares(ps, inc, cfg["share_floor"], cfg["share_power"])
+        wts = net.existence_weights(p_g, cov, cfg["share_floor"])
+        return jnp.take_along_axis(wts.reshape(B, -1), fi, axis=1) * mask
+
+    def terms(params, floor, brick_weight, x, valid, target, fi, mask, inc, prob):
+        fid, binar, p_g, cov = shape_terms(params, floor, brick_weight, x, valid, target)
+        if not cfg["stability"]:
+            return fid, binar, jnp.full((), jnp.nan, fid.dtype), jnp.full((), jnp.nan, fid.dtype)
+        w = subset_weights(p_g, cov, fi, mask, inc)
         # a layered batch's cut ((L,), :func:`batch_subsets`) is the batch's, not batched
         cut = prob.cut
         rep = jax.vmap(lambda wi, pi: soft_report(wi, None, pi._replace(cut=cut), opts=opts))(
@@ -451,7 +500,94 @@ def _model_fns(key: str):
         (loss, aux), g = jax.value_and_grad(total, has_aux=True)(params, lam, bw, floor, brick_weight, *args)
         return loss, aux, g
 
-    return probs_fn, jax.jit(terms), grad_fn
+    if cfg["solves"] == "batch" or not cfg["stability"]:
+        return probs_fn, jax.jit(terms), grad_fn
+
+    # one subset at a time: the stability term's value and its gradient with respect
+    # to the weights from each shape's own compiled solve, then the network's
+    # gradient through the weights as that of sum(w * cotangent)
+    @jax.jit
+    def weights_fn(params, floor, x, valid, fi, mask, inc):
+        _, p_g, cov = forward(params, floor, x, valid)
+        return subset_weights(p_g, cov, fi, mask, inc)
+
+    shape_fn = jax.jit(shape_terms)
+
+    @jax.jit
+    def linear_grad(params, bw, floor, brick_weight, x, valid, target, fi, mask, inc, w_ct):
+        def f(params):
+            fid, binar, p_g, cov = shape_terms(params, floor, brick_weight, x, valid, target)
+            w = subset_weights(p_g, cov, fi, mask, inc)
+            return fid + bw * binar + (w * w_ct).sum(), (fid, binar)
+        return jax.value_and_grad(f, has_aux=True)(params)
+
+    def stability(params, floor, x, valid, fi, mask, inc, probs):
+        """(value (B,), converged (B,), d value / d w (B, n_pad)) of each subset."""
+        w = np.asarray(weights_fn(params, floor, x, valid, fi, mask, inc))
+        return solve_subsets(w, probs, opts)
+
+    def terms_each(params, floor, brick_weight, x, valid, target, fi, mask, inc, probs):
+        fid, binar, _, _ = shape_fn(params, floor, brick_weight, x, valid, target)
+        val, conv, _ = stability(params, floor, x, valid, fi, mask, inc, probs)
+        return fid, binar, np.float64(val.mean()), np.float64(conv.mean())
+
+    def grad_each(params, lam, bw, floor, brick_weight, x, valid, target, fi, mask, inc, probs):
+        val, conv, gw = stability(params, floor, x, valid, fi, mask, inc, probs)
+        stab = float(val.mean())
+        (_, (fid, binar)), g = linear_grad(params, bw, floor, brick_weight, x, valid, target, fi, mask, inc,
+                                           np.float64(lam) * gw / len(probs))
+        loss = fid + bw * binar + lam * stab
+        return loss, (fid, binar, np.float64(stab), np.float64(conv.mean())), g
+
+    return probs_fn, terms_each, grad_each
+
+
+def _subset_term(opts, fields: tuple):
+    """``fn(w, *soft problem arrays) -> (value, converged, d value / d w)`` of
+    one subset's stability term: the sum of its bricks' losses, 0 where the
+    interior point did not converge; ``fields``: the names of the
+    :class:`~stablelego_jax.soft.SoftProblem` fields the arrays are."""
+    import jax
+    import jax.numpy as jnp
+
+    from ..loss import soft_report
+    from ..soft import SoftProblem
+
+    def term(w, prob):
+        rep = soft_report(w, None, prob, opts=opts)
+        return jnp.where(rep.converged, rep.brick_loss.sum(), 0.0), rep.converged
+
+    vg = jax.value_and_grad(term, has_aux=True)
+
+    def fn(w, *arrays):
+        (v, c), g = vg(w, SoftProblem(**dict(zip(fields, arrays))))
+        return v, c, g
+
+    return fn
+
+
+def solve_subsets(w: np.ndarray, probs, opts):
+    """The stability term of each subset of a batch, one solve at a time.
+
+    w (B, n_pad): the subsets' existence weights (a problem's first bricks
+    are its subset's); probs: B soft problems on their own rungs of the
+    ladder (:func:`select_subset` with ``stability_solves`` "each"), each
+    solved by an executable compiled once for its shape (kept in memory
+    and on disk, :func:`~stablelego_jax.solvers.compiled.compiled`).
+    Returns (value (B,), converged (B,) bool, d value / d w (B, n_pad));
+    value and gradient are 0 where a solve did not converge."""
+    B, n_pad = w.shape
+    val, conv, grad = np.zeros(B), np.zeros(B, bool), np.zeros((B, n_pad))
+    for j, prob in enumerate(probs):
+        n = prob.mass.shape[0]
+        k = min(n, n_pad)
+        wj = np.zeros(n)
+        wj[:k] = w[j, :k]
+        fields = tuple(f for f in prob._fields if getattr(prob, f) is not None)
+        arrays = (wj,) + tuple(getattr(prob, f) for f in fields)
+        v, c, g = compiled("train-stability", _subset_term(opts, fields), (opts, fields), arrays)(*arrays)
+        val[j], conv[j], grad[j, :k] = float(v), bool(c), np.asarray(g)[:k]
+    return val, conv, grad
 
 
 # --------------------------------------------------------------------------
@@ -575,10 +711,11 @@ def train(cfg: dict, out: str, resume: bool = False, log=sys.stderr, max_steps: 
     ``max_steps``: stop (with a checkpoint) after this many steps of this
     call, for tests of resuming. Runs in float64 (the library's scope)."""
     probs_fn, step_fn, opt = make_fns(cfg)[:3]  # ConfigError (e.g. no optax) before anything is written
-    try:
-        check_batched_linalg(cfg["batch"])  # the batch's soft problems are solved under vmap
-    except RuntimeError as exc:
-        raise ConfigError(str(exc)) from None
+    if cfg["stability_solves"] == "batch":
+        try:
+            check_batched_linalg(cfg["batch"])  # the batch's soft problems are solved under vmap
+        except RuntimeError as exc:
+            raise ConfigError(str(exc)) from None
     os.makedirs(out, exist_ok=True)
     ckpt = os.path.join(out, "checkpoint.npz")
     if resume and os.path.exists(ckpt):
