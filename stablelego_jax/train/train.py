@@ -28,9 +28,9 @@ Loss per shape (B shapes per step, averaged):
   x ``slots``, ...) and solved in one jit-compiled ``vmap``, one compile
   for the run. The same loss and gradient to rounding. On a CPU a
   ``vmap``-ed batch runs every problem at the padded size until the last
-  has converged: at full scale (``configs/full_scale.json``) a step's
-  stability term took 138 s batched and about 10 s one at a time
-  (BENCHMARKS.md, issue 19, session 55).
+  has converged: at full scale (``configs/full_scale.json``) a step took
+  122-152 s batched and 10-34 s one subset at a time, its executables on
+  disk (BENCHMARKS.md, issue 19, session 55).
   With ``lam`` 0 the term is not computed at all (no subsets, no solves:
   a step costs the network alone; its history logs ``stability`` and
   ``converged`` as null).
