@@ -108,6 +108,20 @@ class SoftProblem(NamedTuple):
     chunk: np.ndarray | None = None
     cut: np.ndarray | None = None
 
+    def flat(self) -> tuple[tuple, tuple]:
+        """(fields, arrays): the names and values of the fields that are not
+        None, for a function of flat arrays
+        (:func:`~stablelego_jax.solvers.compiled.compiled`); ``fields`` (static)
+        and the arrays' shapes identify its compiled shape.
+        :meth:`from_flat` rebuilds the problem."""
+        fields = tuple(f for f in self._fields if getattr(self, f) is not None)
+        return fields, tuple(getattr(self, f) for f in fields)
+
+    @classmethod
+    def from_flat(cls, fields: tuple, arrays) -> "SoftProblem":
+        """The problem of :meth:`flat`'s ``(fields, arrays)`` (the rest None)."""
+        return cls(**dict(zip(fields, arrays)))
+
 
 @dataclasses.dataclass(frozen=True)
 class Candidate:

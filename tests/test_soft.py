@@ -34,6 +34,20 @@ def test_plain_layout_is_compile_layout():
     np.testing.assert_array_equal(prob.unit, np.arange(lay.n))
 
 
+def test_flat_and_from_flat_round_trip_the_fields_that_are_set():
+    from stablelego_jax.soft import SoftProblem
+    from stablelego_jax.solvers.problem import layer_soft
+
+    for prob in (soft_problem(load_layout(STAIR20)), layer_soft(soft_problem(load_layout(STAIR20)))):
+        fields, arrays = prob.flat()
+        assert fields == tuple(f for f in SoftProblem._fields if getattr(prob, f) is not None)
+        back = SoftProblem.from_flat(fields, arrays)
+        for f in SoftProblem._fields:
+            a, b = getattr(prob, f), getattr(back, f)
+            assert (a is None and b is None) or a is b
+    assert "slot" not in soft_problem(load_layout(STAIR20)).flat()[0]
+
+
 def test_candidate_columns_equal_those_of_the_layout_with_it():
     lay = load_layout(STAIR20)
     cands = [candidate_brick([(4, 21, 0, 1, 2)]), candidate_brick([(6, 21, 0, 2, 2), (6, 21, 1, 2, 2)]),

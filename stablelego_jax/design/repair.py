@@ -576,7 +576,7 @@ def _grad_fn(opts: LossOptions, fields: tuple):
     vg = jax.value_and_grad(lambda w, p: stability_loss(w, None, p, opts=opts))
 
     def fn(w, *arrays):
-        return vg(w, SoftProblem(**dict(zip(fields, arrays))))
+        return vg(w, SoftProblem.from_flat(fields, arrays))
 
     return fn
 
@@ -592,8 +592,8 @@ def rank(layout: Layout, cands: Sequence[Candidate], opts: RepairOptions,
     prob = plan_soft(soft.problem)
     w = np.zeros(prob.mass.shape[0])
     w[: soft.n] = soft.weights()
-    fields = tuple(f for f in prob._fields if getattr(prob, f) is not None)
-    arrays = (w,) + tuple(getattr(prob, f) for f in fields)
+    fields, arrays = prob.flat()
+    arrays = (w,) + arrays
     with one_blas_thread():
         val, g = jax.device_get(compiled("repair-grad", _grad_fn(lo, fields), (lo, fields), arrays)(*arrays))
         g = np.asarray(g)

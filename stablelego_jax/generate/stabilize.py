@@ -327,7 +327,7 @@ class _Gradient:
 
         def make(fields):
             def f(theta, fixed, inc, lam, *arrays):
-                prob = SoftProblem(**dict(zip(fields, arrays)))
+                prob = SoftProblem.from_flat(fields, arrays)
                 p = jax.nn.sigmoid(theta)
                 ps = jnp.where(fixed | (inc.sum(0) == 0), 0.0, p)
                 share = subset_shares(ps[None], inc[None])[0]
@@ -387,12 +387,11 @@ class _Gradient:
         fixed[:nf] = True
         theta = np.full(n_pad, -3.0)  # warm start: the region's current bricks likely, the rest not
         theta[nf:nf + k][is_cur] = 2.0
-        fields = tuple(f for f in prob._fields if getattr(prob, f) is not None)
-        key = (fields, n_pad, c_pad) + tuple(np.shape(getattr(prob, f)) for f in fields)
+        fields, arrays = prob.flat()
+        key = (fields, n_pad, c_pad) + tuple(np.shape(a) for a in arrays)
         if key not in self.fns:
             self.fns[key] = self.make(fields)
         fn = self.fns[key]
-        arrays = tuple(getattr(prob, f) for f in fields)
         state = self.adam.init(jax.numpy.asarray(theta))
         with one_blas_thread():
             for t in range(1, self.opts.steps + 1):

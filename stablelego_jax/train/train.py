@@ -560,7 +560,7 @@ def _subset_term(opts, fields: tuple):
     vg = jax.value_and_grad(term, has_aux=True)
 
     def fn(w, *arrays):
-        (v, c), g = vg(w, SoftProblem(**dict(zip(fields, arrays))))
+        (v, c), g = vg(w, SoftProblem.from_flat(fields, arrays))
         return v, c, g
 
     return fn
@@ -583,8 +583,8 @@ def solve_subsets(w: np.ndarray, probs, opts):
         k = min(n, n_pad)
         wj = np.zeros(n)
         wj[:k] = w[j, :k]
-        fields = tuple(f for f in prob._fields if getattr(prob, f) is not None)
-        arrays = (wj,) + tuple(getattr(prob, f) for f in fields)
+        fields, arrays = prob.flat()
+        arrays = (wj,) + arrays
         v, c, g = compiled("train-stability", _subset_term(opts, fields), (opts, fields), arrays)(*arrays)
         val[j], conv[j], grad[j, :k] = float(v), bool(c), np.asarray(g)[:k]
     return val, conv, grad
