@@ -122,6 +122,16 @@ class SoftProblem(NamedTuple):
         """The problem of :meth:`flat`'s ``(fields, arrays)`` (the rest None)."""
         return cls(**dict(zip(fields, arrays)))
 
+    def keep_only(self, keep, xp=np) -> "SoftProblem":
+        """The problem with only the bricks ``keep`` ((n,) bool, one value per
+        unit): the others become padding and every column that touches one
+        of them is dropped; shapes, slots and levels stay. ``xp``: numpy, or
+        ``jax.numpy`` for a traced ``keep``."""
+        ext = xp.concatenate([xp.asarray(keep, bool), xp.ones((1,), bool)])
+        cb = self.col_brick
+        return self._replace(brick_mask=self.brick_mask & ext[:-1],
+                             col_mask=self.col_mask & ext[cb[:, 0]] & ext[cb[:, 1]])
+
 
 @dataclasses.dataclass(frozen=True)
 class Candidate:

@@ -48,6 +48,26 @@ def test_flat_and_from_flat_round_trip_the_fields_that_are_set():
     assert "slot" not in soft_problem(load_layout(STAIR20)).flat()[0]
 
 
+def test_keep_only_pads_the_dropped_bricks_and_every_column_that_touches_them():
+    import jax.numpy as jnp
+
+    prob = soft_problem(load_layout(STAIR20))
+    n = prob.mass.shape[0]
+    keep = np.ones(n, bool)
+    keep[[3, 7]] = False
+    out = prob.keep_only(keep)
+    np.testing.assert_array_equal(out.brick_mask, prob.brick_mask & keep)
+    cb = np.asarray(prob.col_brick)
+    touches = np.isin(cb, [3, 7]).any(axis=1)
+    assert touches.any() and (prob.col_mask & ~touches).any()
+    np.testing.assert_array_equal(out.col_mask, prob.col_mask & ~touches)
+    for f in ("col_brick", "col_coef", "col_kind", "group", "mass", "unit", "level"):
+        assert getattr(out, f) is getattr(prob, f)
+    traced = prob.keep_only(jnp.asarray(keep), xp=jnp)
+    np.testing.assert_array_equal(traced.col_mask, out.col_mask)
+    np.testing.assert_array_equal(traced.brick_mask, out.brick_mask)
+
+
 def test_candidate_columns_equal_those_of_the_layout_with_it():
     lay = load_layout(STAIR20)
     cands = [candidate_brick([(4, 21, 0, 1, 2)]), candidate_brick([(6, 21, 0, 2, 2), (6, 21, 1, 2, 2)]),

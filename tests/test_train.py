@@ -131,6 +131,64 @@ def test_subsets_solved_one_at_a_time_give_the_batched_loss_and_gradient(tmp_pat
         np.testing.assert_allclose(np.asarray(b1), np.asarray(b2), rtol=1e-7, atol=1e-9 * scale)
 
 
+def test_nearly_absent_placements_are_dropped_and_the_subset_converges():
+    """A cluster of nearly absent bricks (weight 1e-17) on a layout: the soft
+    interior point does not centre on it as it is; with ``absent_below``
+    (:func:`present`) those bricks leave the problem, the solve converges,
+    and loss and gradient are those of the layout without them (the
+    dropped bricks' gradient 0)."""
+    from stablelego_jax import load_layout
+    from stablelego_jax.loss import soft_report, stability_loss
+    from stablelego_jax.soft import soft_problem
+    from stablelego_jax.solvers.problem import pad_soft
+
+    from conftest import EXAMPLES
+
+    lay = load_layout(os.path.join(EXAMPLES, "stablelego", "external_weight_fail.json"))
+    prob = pad_soft(soft_problem(lay), 8, 256, 32)
+    n = lay.n
+    top = np.argsort(-np.asarray(prob.level)[:n], kind="stable")[:3]
+    w = np.zeros(8)
+    w[:n] = 1.0
+    w[top] = 1e-17
+    kept = [i for i in range(n) if i not in top]
+    small = pad_soft(soft_problem(lay.subset(kept)), 8, 256, 32)
+    w_small = np.zeros(8)
+    w_small[: len(kept)] = 1.0
+
+    def loss(w, prob, below):
+        w, prob = T.present(w, prob, below)
+        return stability_loss(w, None, prob)
+
+    def converged(w, prob, below):
+        w, prob = T.present(w, prob, below)
+        return soft_report(w, None, prob).converged
+
+    vg = jax.jit(jax.value_and_grad(loss), static_argnums=2)
+    conv = jax.jit(converged, static_argnums=2)
+    with one_blas_thread():
+        assert not bool(conv(w, prob, 0.0))  # the cluster as it is: not centred
+        assert bool(conv(w, prob, 1e-6))
+        v, g = vg(w, prob, 1e-6)
+        v0, g0 = vg(w_small, small, 1e-6)
+    assert float(v0) > 0.0
+    np.testing.assert_allclose(float(v), float(v0), rtol=1e-9)
+    np.testing.assert_array_equal(np.asarray(g)[top], 0.0)
+    np.testing.assert_allclose(np.asarray(g)[kept], np.asarray(g0)[: len(kept)], rtol=1e-6, atol=1e-9)
+
+
+def test_config_diff_defaults_missing_keys_and_ignores_stability_keys_at_lam_0(tmp_path):
+    cfg = _cfg(tmp_path, lam=0.0)
+    old = {k: v for k, v in cfg.items() if k != "absent_below"}  # a run from before the key existed
+    assert T.config_diff(old, cfg) == []
+    assert T.config_diff(old, dict(cfg, lam=1.0, absent_below=1e-6)) == ["absent_below", "lam"]
+    assert T.config_diff(old, dict(cfg, absent_below=1e-6)) == []  # lam 0: no stability term
+    assert T.config_diff(dict(old, lam=1.0), dict(cfg, lam=1.0, absent_below=1e-6)) == ["absent_below"]
+    assert T.config_diff(old, dict(cfg, bin_weight=cfg["bin_weight"] + 1)) == ["bin_weight"]
+    with pytest.raises(T.ConfigError, match="absent_below"):
+        _cfg(tmp_path, absent_below=1.0)
+
+
 def test_crop_equals_full_grid():
     s = procedural_shape(3, kind="bridge")
     params = net.init_params(jax.random.PRNGKey(1), 8)

@@ -111,11 +111,18 @@ DEFAULTS = {
     "eval_heldout": True,
     "log_every": 10,
     "stability_solves": "each",
+    "absent_below": 0.0,
 }
 
 #: Config keys that change how the loss is computed, not its value: a
 #: checkpoint resumes, and a stored run is reused, whatever they were.
 HOW_KEYS = ("stability_solves",)
+
+#: Config keys read only by the stability term: runs with ``lam`` 0 do not
+#: differ by them.
+STABILITY_KEYS = ("absent_below", "temperature", "competitors", "random_competitors", "random_pool",
+                  "share_floor", "share_power", "share_scope", "subset_base", "n_pad", "m_pad", "p_pad",
+                  "c_pad", "chunk_pad")
 
 
 class ConfigError(ValueError):
@@ -169,6 +176,8 @@ def load_config(path: str, **overrides) -> dict:
         raise ConfigError(f"{path}: need lam >= 0 and 0 < threshold <= 1")
     if not 0 < cfg["share_power"] <= 1:
         raise ConfigError(f"{path}: need 0 < share_power <= 1, got {cfg['share_power']}")
+    if not 0 <= cfg["absent_below"] < 1:
+        raise ConfigError(f"{path}: need 0 <= absent_below < 1, got {cfg['absent_below']}")
     if cfg["mesh_dir"] is not None and not os.path.isabs(cfg["mesh_dir"]):
         cfg["mesh_dir"] = os.path.abspath(cfg["mesh_dir"])  # relative to the working folder
     if cfg["mesh_dir"] is not None and not os.path.isdir(cfg["mesh_dir"]):
@@ -205,8 +214,13 @@ def dataset(cfg: dict, validation: bool = False):
 
 def config_diff(stored: dict, cfg: dict, ignore=()) -> list[str]:
     """The keys of ``cfg`` (sorted) whose value in ``stored`` differs, except
-    ``ignore`` and :data:`HOW_KEYS`."""
-    return sorted(k for k in cfg if k not in ignore and k not in HOW_KEYS and stored.get(k) != cfg[k])
+    ``ignore``, :data:`HOW_KEYS` and, when both have ``lam`` 0,
+    :data:`STABILITY_KEYS`. A key ``stored`` lacks (a run from before the
+    key existed) counts as its default, the old behaviour."""
+    skip = set(ignore) | set(HOW_KEYS)
+    if stored.get("lam") == 0 and cfg.get("lam") == 0:
+        skip |= set(STABILITY_KEYS)
+    return sorted(k for k in cfg if k not in skip and stored.get(k, DEFAULTS.get(k)) != cfg[k])
 
 
 def split_shapes(cfg: dict, split: str):
@@ -365,7 +379,7 @@ def bin_weight(cfg: dict, step: int) -> float:
 # everything else, grad_floor and brick_weight included, enters as a value,
 # so a sweep over those reuses one compilation
 _GRAPH_KEYS = ("dilations", "logit_bound", "temperature", "under_weight", "share_scope", "share_floor",
-               "share_power")
+               "share_power", "absent_below")
 _OPT_KEYS = ("lr", "lr_schedule", "steps", "lr_final_frac", "clip")
 
 
@@ -485,8 +499,11 @@ def _model_fns(key: str):
         w = subset_weights(p_g, cov, fi, mask, inc)
         # a layered batch's cut ((L,), :func:`batch_subsets`) is the batch's, not batched
         cut = prob.cut
-        rep = jax.vmap(lambda wi, pi: soft_report(wi, None, pi._replace(cut=cut), opts=opts))(
-            w, prob._replace(cut=None))
+        def report(wi, pi):
+            wi, pi = present(wi, pi._replace(cut=cut), cfg["absent_below"])
+            return soft_report(wi, None, pi, opts=opts)
+
+        rep = jax.vmap(report)(w, prob._replace(cut=None))
         # a problem whose interior-point solve did not converge contributes nothing
         stab = jnp.where(rep.converged, rep.brick_loss.sum(1), 0.0).mean()
         return fid, binar, stab, rep.converged.mean()
@@ -524,7 +541,7 @@ def _model_fns(key: str):
     def stability(params, floor, x, valid, fi, mask, inc, probs):
         """(value (B,), converged (B,), d value / d w (B, n_pad)) of each subset."""
         w = np.asarray(weights_fn(params, floor, x, valid, fi, mask, inc))
-        return solve_subsets(w, probs, opts)
+        return solve_subsets(w, probs, opts, cfg["absent_below"])
 
     def terms_each(params, floor, brick_weight, x, valid, target, fi, mask, inc, probs):
         fid, binar, _, _ = shape_fn(params, floor, brick_weight, x, valid, target)
@@ -542,11 +559,35 @@ def _model_fns(key: str):
     return probs_fn, terms_each, grad_each
 
 
-def _subset_term(opts, fields: tuple):
+def present(w, prob, below: float):
+    """(w, prob) of a subset without its placements of weight at most
+    ``below`` (0: all kept): they are dropped from the problem
+    (:meth:`~stablelego_jax.soft.SoftProblem.keep_only`) and their weight
+    set to 0, so the loss's gradient with respect to them is 0. w: (n,)
+    traced weights; prob: its soft problem.
+
+    Why: on a cluster of nearly absent bricks (weights like 1e-17 next to
+    bricks of weight 1, as a generator's saturated probabilities give) the
+    soft interior point often does not centre (BENCHMARKS.md, issue 19,
+    session 56), and an unconverged subset contributes nothing. With
+    ``grad_floor`` 0 and ``share_power`` 1 a placement's weight reaches
+    the network's gradient scaled by that weight, so dropping those below
+    ``below`` changes the gradient by at most that fraction of what they
+    would have given."""
+    import jax.numpy as jnp
+
+    if below <= 0:
+        return w, prob
+    keep = (jnp.asarray(w)[prob.unit] > below) & prob.brick_mask
+    return jnp.where(keep, w, 0.0), prob.keep_only(keep, xp=jnp)
+
+
+def _subset_term(opts, fields: tuple, below: float):
     """``fn(w, *soft problem arrays) -> (value, converged, d value / d w)`` of
     one subset's stability term: the sum of its bricks' losses, 0 where the
     interior point did not converge; ``fields``: the names of the
-    :class:`~stablelego_jax.soft.SoftProblem` fields the arrays are."""
+    :class:`~stablelego_jax.soft.SoftProblem` fields the arrays are;
+    ``below``: :func:`present`'s."""
     import jax
     import jax.numpy as jnp
 
@@ -554,6 +595,7 @@ def _subset_term(opts, fields: tuple):
     from ..soft import SoftProblem
 
     def term(w, prob):
+        w, prob = present(w, prob, below)
         rep = soft_report(w, None, prob, opts=opts)
         return jnp.where(rep.converged, rep.brick_loss.sum(), 0.0), rep.converged
 
@@ -566,7 +608,7 @@ def _subset_term(opts, fields: tuple):
     return fn
 
 
-def solve_subsets(w: np.ndarray, probs, opts):
+def solve_subsets(w: np.ndarray, probs, opts, below: float = 0.0):
     """The stability term of each subset of a batch, one solve at a time.
 
     w (B, n_pad): the subsets' existence weights (a problem's first bricks
@@ -574,8 +616,10 @@ def solve_subsets(w: np.ndarray, probs, opts):
     ladder (:func:`select_subset` with ``stability_solves`` "each"), each
     solved by an executable compiled once for its shape (kept in memory
     and on disk, :func:`~stablelego_jax.solvers.compiled.compiled`).
-    Returns (value (B,), converged (B,) bool, d value / d w (B, n_pad));
-    value and gradient are 0 where a solve did not converge."""
+    ``below``: the weight at or below which a placement is dropped
+    (:func:`present`). Returns (value (B,), converged (B,) bool,
+    d value / d w (B, n_pad)); value and gradient are 0 where a solve did
+    not converge."""
     B, n_pad = w.shape
     val, conv, grad = np.zeros(B), np.zeros(B, bool), np.zeros((B, n_pad))
     for j, prob in enumerate(probs):
@@ -585,7 +629,7 @@ def solve_subsets(w: np.ndarray, probs, opts):
         wj[:k] = w[j, :k]
         fields, arrays = prob.flat()
         arrays = (wj,) + arrays
-        v, c, g = compiled("train-stability", _subset_term(opts, fields), (opts, fields), arrays)(*arrays)
+        v, c, g = compiled("train-stability", _subset_term(opts, fields, below), (opts, fields, below), arrays)(*arrays)
         val[j], conv[j], grad[j, :k] = float(v), bool(c), np.asarray(g)[:k]
     return val, conv, grad
 
