@@ -187,6 +187,12 @@ def test_config_diff_defaults_missing_keys_and_ignores_stability_keys_at_lam_0(t
     assert T.config_diff(old, dict(cfg, bin_weight=cfg["bin_weight"] + 1)) == ["bin_weight"]
     with pytest.raises(T.ConfigError, match="absent_below"):
         _cfg(tmp_path, absent_below=1.0)
+    with pytest.raises(T.ConfigError, match="solver_iters"):
+        _cfg(tmp_path, solver_iters=0)
+    assert T.loss_options(_cfg(tmp_path, solver_iters=100)).iters == 100
+    from stablelego_jax.loss import LossOptions
+
+    assert T.loss_options(cfg).iters == LossOptions().iters == 30
 
 
 def test_crop_equals_full_grid():

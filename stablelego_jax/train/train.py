@@ -112,6 +112,7 @@ DEFAULTS = {
     "log_every": 10,
     "stability_solves": "each",
     "absent_below": 0.0,
+    "solver_iters": 30,
 }
 
 #: Config keys that change how the loss is computed, not its value: a
@@ -120,8 +121,8 @@ HOW_KEYS = ("stability_solves",)
 
 #: Config keys read only by the stability term: runs with ``lam`` 0 do not
 #: differ by them.
-STABILITY_KEYS = ("absent_below", "temperature", "competitors", "random_competitors", "random_pool",
-                  "share_floor", "share_power", "share_scope", "subset_base", "n_pad", "m_pad", "p_pad",
+STABILITY_KEYS = ("absent_below", "solver_iters", "temperature", "competitors", "random_competitors",
+                  "random_pool", "share_floor", "share_power", "share_scope", "subset_base", "n_pad", "m_pad", "p_pad",
                   "c_pad", "chunk_pad")
 
 
@@ -156,7 +157,7 @@ def load_config(path: str, **overrides) -> dict:
             raise ConfigError(f"{path}: config key {k!r} must be {type(d).__name__}, got {v!r}")
         cfg[k] = float(v) if isinstance(d, float) else v
     for k in ("steps", "batch", "n_pad", "m_pad", "p_pad", "c_pad", "slots", "chunk_pad", "checkpoint_every",
-              "eval_every", "log_every"):
+              "eval_every", "log_every", "solver_iters"):
         if cfg[k] < 1:
             raise ConfigError(f"{path}: config key {k!r} must be >= 1, got {cfg[k]}")
     if not (isinstance(cfg["crop"], list) and len(cfg["crop"]) == 3 and all(
@@ -379,7 +380,7 @@ def bin_weight(cfg: dict, step: int) -> float:
 # everything else, grad_floor and brick_weight included, enters as a value,
 # so a sweep over those reuses one compilation
 _GRAPH_KEYS = ("dilations", "logit_bound", "temperature", "under_weight", "share_scope", "share_floor",
-               "share_power", "absent_below")
+               "share_power", "absent_below", "solver_iters")
 _OPT_KEYS = ("lr", "lr_schedule", "steps", "lr_final_frac", "clip")
 
 
@@ -444,6 +445,16 @@ def _optimizer(key: str):
     return opt, update_fn
 
 
+def loss_options(cfg: dict):
+    """The stability term's :class:`~stablelego_jax.loss.LossOptions`:
+    ``temperature`` and, as the interior point's most iterations,
+    ``solver_iters`` (a subset that has not converged by then adds nothing;
+    one that converges sooner stops sooner, with the same numbers)."""
+    from ..loss import LossOptions
+
+    return LossOptions(temperature=cfg["temperature"], iters=cfg["solver_iters"])
+
+
 @functools.lru_cache(maxsize=8)
 def _model_fns(key: str):
     """(probs_fn, terms, grad_fn) jitted for the graph keys in ``key``; terms
@@ -453,11 +464,11 @@ def _model_fns(key: str):
     import jax.numpy as jnp
 
     _optax()  # ConfigError before anything is compiled or written
-    from ..loss import LossOptions, soft_report
+    from ..loss import soft_report
     from . import net
 
     dil = tuple(cfg["dilations"])
-    opts = LossOptions(temperature=cfg["temperature"])
+    opts = loss_options(cfg)
 
     @jax.jit
     def probs_fn(params, x, valid):
