@@ -107,8 +107,10 @@ def test_subsets_solved_one_at_a_time_give_the_batched_loss_and_gradient(tmp_pat
     params = T.initial_params(each, 0)
     lam, bw = np.float64(each["lam"]), np.float64(0.1)
     out = {}
+    # absent_below: both paths drop the same placements (4 of one subset at initialisation, weights 0.10)
+    drop = dict(each, absent_below=0.12), dict(batch, absent_below=0.12)
     with one_blas_thread():
-        for name, cfg in (("each", each), ("batch", batch)):
+        for name, cfg in (("each", each), ("batch", batch), ("each drop", drop[0]), ("batch drop", drop[1])):
             probs_fn, _, _, terms, grad_fn = T.make_fns(cfg)
             p = np.asarray(probs_fn(params, arr.x, arr.valid))
             sub = T.batch_subsets(p, arr.valid, cfg, np.random.default_rng(0), arr.span)
@@ -129,6 +131,10 @@ def test_subsets_solved_one_at_a_time_give_the_batched_loss_and_gradient(tmp_pat
     for (w1, b1), (w2, b2) in zip(ge, gb):
         np.testing.assert_allclose(np.asarray(w1), np.asarray(w2), rtol=1e-7, atol=1e-9 * scale)
         np.testing.assert_allclose(np.asarray(b1), np.asarray(b2), rtol=1e-7, atol=1e-9 * scale)
+    (_, (lde, ade, _), _), (_, (ldb, adb, _), _) = out["each drop"], out["batch drop"]
+    assert float(ade[2]) > 0.0 and abs(float(ade[2]) - float(ae[2])) > 1e-3 * float(ae[2])
+    np.testing.assert_allclose(float(lde), float(ldb), rtol=1e-9)
+    np.testing.assert_allclose([float(a) for a in ade], [float(a) for a in adb], rtol=1e-9)
 
 
 def test_nearly_absent_placements_are_dropped_and_the_subset_converges():
