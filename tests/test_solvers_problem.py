@@ -156,6 +156,11 @@ def test_contact_levels_that_do_not_layer_a_scene_are_not_used(tmp_path):
     assert not soft_levels(soft).any() and soft_layer_plan(soft) == (1, 52) and soft_plan(soft) == ("dense",)
     grid = soft_problem(cuboid(7, 7, 6))
     assert soft_layer_plan(grid) == (6, 49) and soft_plan(grid)[0] == "layered"
+    # priced by the time model, not by flops: 3 levels of 48 bricks pad to 4 x 48 slots,
+    # 4 * 48^3 > 144^3 / 9, yet the layered loss + gradient took 123 ms against 189 ms dense
+    # (the same loss; BENCHMARKS.md, issue 19, session 58)
+    wide = soft_problem(cuboid(6, 8, 3))
+    assert soft_layer_plan(wide) == (3, 48) and soft_plan(wide) == ("layered", 4, 48)
 
 
 def test_pad_and_stack_soft():

@@ -400,13 +400,21 @@ def pair_chunks(prob, width: int = CHUNK) -> np.ndarray:
 
 
 def soft_plan(prob: SoftProblem) -> tuple:
-    """("dense",) or ("layered", L, B) for a soft problem, whichever
-    factorises more cheaply (the rule of :func:`solve_plan`, the same block
-    Cholesky: the layered factorisation costs ~3 L (6 B)^3, the dense one
-    (6 n)^3 / 3); at most ``DENSE_MAX`` bricks stay dense."""
+    """("dense",) or ("layered", L, B) for a soft problem, whichever the
+    time model of an interior-point iteration (:func:`plan_seconds`, the
+    same block Cholesky as the verdict LP's, fitted to measured solves)
+    prices lower: the dense rung of its bricks against the ladder's layers
+    and slots, uncut (a cut layered factor only costs less); at most
+    ``DENSE_MAX`` bricks stay dense. Until session 58 this was
+    :func:`solve_plan`'s flop count (layered where ``L B^3 < n^3 / 9``),
+    which kept wide problems dense: a 640-placement training subset of 16
+    levels of at most 99 bricks took 63.4 s for its loss and gradient dense
+    and 11.1 s layered and cut, the same loss to 10 digits (BENCHMARKS.md,
+    issue 19, session 58)."""
     n = int(np.asarray(prob.brick_mask).sum())
     Lp, Bp = layer_bucket(*soft_layer_plan(prob))
-    if n > DENSE_MAX and Lp > 1 and Lp * Bp ** 3 < n ** 3 / 9:
+    if n > DENSE_MAX and Lp > 1 and \
+            plan_seconds(("layered", Lp, Bp), 0, 1) < plan_seconds(("dense", rung(n, MIN_BRICKS)), 0, 1):
         return ("layered", Lp, Bp)
     return ("dense",)
 
