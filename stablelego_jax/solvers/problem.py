@@ -400,21 +400,25 @@ def pair_chunks(prob, width: int = CHUNK) -> np.ndarray:
 
 
 def soft_plan(prob: SoftProblem) -> tuple:
-    """("dense",) or ("layered", L, B) for a soft problem, whichever the
-    time model of an interior-point iteration (:func:`plan_seconds`, the
-    same block Cholesky as the verdict LP's, fitted to measured solves)
-    prices lower: the dense rung of its bricks against the ladder's layers
-    and slots, uncut (a cut layered factor only costs less); at most
-    ``DENSE_MAX`` bricks stay dense. Until session 58 this was
-    :func:`solve_plan`'s flop count (layered where ``L B^3 < n^3 / 9``),
-    which kept wide problems dense: a 640-placement training subset of 16
+    """("dense",) or ("layered", L, B) for a soft problem; at most
+    ``DENSE_MAX`` bricks stay dense. Layered where it factorises more
+    cheaply by :func:`solve_plan`'s flop count (``L B^3 < n^3 / 9``, B and
+    L on the ladder, n the real bricks), and also where the time model of
+    an iteration (:func:`plan_seconds`: the dense rung of its bricks against
+    the ladder's layers and slots, uncut) says a solve of
+    ``SOFT_SOLVES`` factorisations saves more than ``SOFT_SHARE`` of a
+    compile: the flop count alone kept wide problems dense (the slots
+    rounded up to the ladder), and a 640-placement training subset of 16
     levels of at most 99 bricks took 63.4 s for its loss and gradient dense
-    and 11.1 s layered and cut, the same loss to 10 digits (BENCHMARKS.md,
+    against 11.1 s layered and cut, the same loss to 10 digits; smaller
+    problems keep the dense rungs, which fewer shapes share (BENCHMARKS.md,
     issue 19, session 58)."""
     n = int(np.asarray(prob.brick_mask).sum())
     Lp, Bp = layer_bucket(*soft_layer_plan(prob))
-    if n > DENSE_MAX and Lp > 1 and \
-            plan_seconds(("layered", Lp, Bp), 0, 1) < plan_seconds(("dense", rung(n, MIN_BRICKS)), 0, 1):
+    if n <= DENSE_MAX or Lp <= 1:
+        return ("dense",)
+    saving = SOFT_SOLVES * (plan_seconds(("dense", rung(n, MIN_BRICKS)), 0, 1) - plan_seconds(("layered", Lp, Bp), 0, 1))
+    if Lp * Bp ** 3 < n ** 3 / 9 or saving > SOFT_SHARE * SOFT_COMPILE_S:
         return ("layered", Lp, Bp)
     return ("dense",)
 
