@@ -157,16 +157,15 @@ def test_contact_levels_that_do_not_layer_a_scene_are_not_used(tmp_path):
     assert not soft_levels(soft).any() and soft_layer_plan(soft) == (1, 52) and soft_plan(soft) == ("dense",)
     grid = soft_problem(cuboid(7, 7, 6))
     assert soft_layer_plan(grid) == (6, 49) and soft_plan(grid)[0] == "layered"
-    # the flop count (L B^3 < n^3 / 9 on the ladder's L and B) and the time model agree on small
-    # problems: 3 levels of 48 bricks pad to 4 x 48 slots, dense (layered would save ~0.06 s a
-    # solve, under a tenth of a compile)
+    # small problems stay dense: 3 levels of 48 bricks pad to 4 x 48 slots, 4 * 48^3 > 144^3 / 9
+    # (the flop count), and layered would save ~0.06 s a solve by the time model, under a tenth of
+    # a compile
     wide = soft_problem(cuboid(6, 8, 3))
     assert soft_layer_plan(wide) == (3, 48) and soft_plan(wide) == ("dense",)
     # uneven levels, as a training subset's (BENCHMARKS.md, issue 19, session 58): 5 levels of 99
     # bricks and a column of 5 above, 500 bricks in 10 levels pad to 12 x 128 slots, 12 * 128^3 >
     # 500^3 / 9, so the flop count says dense, yet the time model saves ~3.6 s a solve: layered
-    z, x, y = np.meshgrid(np.arange(5), np.arange(9), np.arange(11), indexing="ij")
-    pos = np.concatenate([np.stack([x.ravel(), y.ravel(), z.ravel()], 1), [[0, 0, k] for k in range(5, 10)]])
+    pos = np.concatenate([cuboid(9, 11, 5).pos, [[0, 0, k] for k in range(5, 10)]])
     uneven = soft_problem(brick_layout(pos, np.ones((len(pos), 2), np.int64)))
     assert soft_layer_plan(uneven) == (10, 99) and soft_plan(uneven) == ("layered", 12, 128)
 
