@@ -51,7 +51,7 @@ from __future__ import annotations
 import contextlib
 import functools
 
-__all__ = ["one_blas_thread", "openblas_library", "inline_cpu_dispatch", "one_xla_pool_thread",
+__all__ = ["one_blas_thread", "openblas_library", "inline_cpu_dispatch", "one_xla_pool_thread", "widen_xla_pool",
            "lapack_pool_deadlock", "installed_jaxlib_version", "LAPACK_POOL_DEADLOCK", "pool_threads",
            "batched_linalg_hangs", "check_batched_linalg"]
 
@@ -81,6 +81,29 @@ def one_xla_pool_thread(environ=None, jaxlib_version: str | None = None) -> bool
     if "PJRT_NPROC" in env or "NPROC" in env or not lapack_pool_deadlock(jaxlib_version):
         return False
     env["PJRT_NPROC"] = "1"
+    _POOL_SET_HERE.add(id(env))
+    return True
+
+
+#: the environments (by ``id``) whose ``PJRT_NPROC=1`` :func:`one_xla_pool_thread` set
+_POOL_SET_HERE: set = set()
+
+
+def widen_xla_pool(threads: int, environ=None) -> bool:
+    """Size XLA's CPU intra-op pool to ``threads`` (``PJRT_NPROC``) where
+    :func:`one_xla_pool_thread` set it to one in ``environ`` (default
+    ``os.environ``; a caller's own ``PJRT_NPROC`` or ``NPROC`` is kept),
+    for a program whose LAPACK calls each factorise one matrix, which a
+    larger pool cannot deadlock (this module's docstring): ``stablelego
+    train`` with subsets solved one per call. Call it only before JAX's
+    CPU backend starts in a process of its own (the variable also reaches
+    the processes it starts). Returns whether it set the variable."""
+    import os
+
+    env = os.environ if environ is None else environ
+    if threads <= 1 or id(env) not in _POOL_SET_HERE or env.get("PJRT_NPROC") != "1":
+        return False
+    env["PJRT_NPROC"] = str(int(threads))
     return True
 
 

@@ -70,6 +70,19 @@ def test_the_pool_guard_keeps_a_callers_own_setting():
         assert not one_xla_pool_thread(env, "0.10.2") and env == {var: "4"}
 
 
+def test_the_pool_is_widened_only_where_the_guard_set_it():
+    from stablelego_jax.blas import widen_xla_pool
+
+    env = {}
+    assert one_xla_pool_thread(env, "0.10.2")
+    assert not widen_xla_pool(1, env) and env == {"PJRT_NPROC": "1"}
+    assert widen_xla_pool(2, env) and env == {"PJRT_NPROC": "2"}
+    assert not widen_xla_pool(3, env) and env == {"PJRT_NPROC": "2"}  # once
+    for own in ({"PJRT_NPROC": "1"}, {"NPROC": "1"}, {}):  # a caller's own setting, or no guard at all
+        before = dict(own)
+        assert not widen_xla_pool(2, own) and own == before
+
+
 def test_batched_lapack_calls_side_by_side_finish_after_importing_the_package():
     """The reproducer finishes when the package was imported first (its
     guard sizes the pool); a hang here is the deadlock of stablelego_jax.blas."""

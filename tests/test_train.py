@@ -137,6 +137,48 @@ def test_subsets_solved_one_at_a_time_give_the_batched_loss_and_gradient(tmp_pat
     np.testing.assert_allclose([float(a) for a in ade], [float(a) for a in adb], rtol=1e-9)
 
 
+def test_subsets_solved_in_threads_give_the_same_numbers(tmp_path, monkeypatch):
+    """solve_jobs 2: the batch's subsets are solved two at a time, each on a
+    thread of its own, and the loss terms and gradient are bit for bit those
+    of one at a time; a resumed run may change it (a HOW key), a negative
+    count is refused."""
+    import threading
+
+    cfg1 = _cfg(tmp_path, batch=4, solve_jobs=1)
+    cfg2 = dict(cfg1, solve_jobs=2)
+    arr = _batch(cfg1, kinds=("cantilever", "tee", "bridge", "table"))
+    params = T.initial_params(cfg1, 0)
+    lam, bw = np.float64(cfg1["lam"]), np.float64(0.1)
+    threads = set()
+    real_compiled = T.compiled
+
+    def counting(*args, **kw):
+        threads.add(threading.get_ident())
+        return real_compiled(*args, **kw)
+
+    monkeypatch.setattr(T, "compiled", counting)  # the thread that runs each subset's solve
+    out = {}
+    with one_blas_thread():
+        for name, cfg in (("one", cfg1), ("two", cfg2)):
+            probs_fn, _, _, _, grad_fn = T.make_fns(cfg)
+            p = np.asarray(probs_fn(params, arr.x, arr.valid))
+            sub = T.batch_subsets(p, arr.valid, cfg, np.random.default_rng(0), arr.span)
+            assert len(sub.prob) == 4
+            threads.clear()
+            out[name] = grad_fn(params, lam, bw, arr.x, arr.valid, arr.target, *sub)
+            out[name + " threads"] = set(threads)
+    assert out["one threads"] == {threading.get_ident()}
+    assert len(out["two threads"]) == 2 and threading.get_ident() not in out["two threads"]
+    (l1, a1, g1), (l2, a2, g2) = out["one"], out["two"]
+    assert float(a1[2]) > 0.0
+    assert float(l1) == float(l2) and [float(a) for a in a1] == [float(a) for a in a2]
+    for x1, x2 in zip(jax.tree_util.tree_leaves(g1), jax.tree_util.tree_leaves(g2)):
+        np.testing.assert_array_equal(np.asarray(x1), np.asarray(x2))
+    assert T.config_diff(cfg1, cfg2) == [] and T.solve_jobs(cfg2) == 2 and T.solve_jobs(dict(cfg1, solve_jobs=0)) >= 1
+    with pytest.raises(T.ConfigError, match="cfg.json.*solve_jobs"):
+        _cfg(tmp_path, solve_jobs=-1)
+
+
 def test_nearly_absent_placements_are_dropped_and_the_subset_converges():
     """A cluster of nearly absent bricks (weight 1e-17) on a layout: the soft
     interior point does not centre on it as it is; with ``absent_below``

@@ -51,6 +51,7 @@ def main(argv=None) -> int:
     from .interrupt import end_process, prompt_interrupt
 
     args = build_parser().parse_args(argv)
+    args.own_process = argv is None  # the program itself: JAX's backend has not started
     # before JAX's backend starts (a no-op once it has, e.g. in tests):
     # computations run inline on the calling thread (see stablelego_jax.blas)
     inline_cpu_dispatch()

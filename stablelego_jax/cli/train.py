@@ -28,6 +28,9 @@ def add_parsers(sub) -> None:
     t.add_argument("--seed", type=int, default=None, help="override the config's seed")
     t.add_argument("--lam", type=float, default=None, help="override the config's stability weight lambda")
     t.add_argument("--steps", type=int, default=None, help="override the config's step count")
+    t.add_argument("--jobs", type=int, default=None, metavar="N",
+                   help="subsets solved at once, in threads (the config's solve_jobs; 0, the default: every core); "
+                        "the same numbers whatever N")
     t.set_defaults(func=cmd_train)
 
     e = sub.add_parser(
@@ -51,7 +54,8 @@ def add_parsers(sub) -> None:
 def cmd_train(args) -> int:
     from ..train.train import run
 
-    return run(args.config, args.out, args.resume, args.seed, args.lam, args.steps)
+    return run(args.config, args.out, args.resume, args.seed, args.lam, args.steps, args.jobs,
+               widen_pool=getattr(args, "own_process", False))
 
 
 def cmd_evaluate(args) -> int:

@@ -1,6 +1,6 @@
 """Train the generator with shape fidelity + lambda * stability loss.
 
-    stablelego train [--config CONFIG] [--out DIR] [--resume] [--seed S] [--lam L] [--steps N]
+    stablelego train [--config CONFIG] [--out DIR] [--resume] [--seed S] [--lam L] [--steps N] [--jobs N]
 
 Loss per shape (B shapes per step, averaged):
 
@@ -30,7 +30,10 @@ Loss per shape (B shapes per step, averaged):
   ``vmap``-ed batch runs every problem at the padded size until the last
   has converged: at full scale (``configs/full_scale.json``) a step took
   122-152 s batched and 10-34 s one subset at a time, its executables on
-  disk (BENCHMARKS.md, issue 19, session 55).
+  disk (BENCHMARKS.md, issue 19, session 55). With ``"each"``,
+  ``solve_jobs`` subsets are solved at once in threads (default 0: one
+  per core this process may run on; ``stablelego train --jobs N``), the
+  largest first; the same numbers whatever the count.
   With ``lam`` 0 the term is not computed at all (no subsets, no solves:
   a step costs the network alone; its history logs ``stability`` and
   ``converged`` as null).
@@ -42,6 +45,7 @@ exactly (same batches, same updates).
 """
 from __future__ import annotations
 
+import concurrent.futures
 import functools
 import json
 import os
@@ -52,7 +56,7 @@ from typing import NamedTuple
 import numpy as np
 
 from ..analysis import analyze_layout
-from ..blas import check_batched_linalg, one_blas_thread
+from ..blas import check_batched_linalg, one_blas_thread, pool_threads
 from ..files import atomic_write, atomic_write_text
 from ..layout import brick_layout, cells_of
 from ..runtime import x64
@@ -111,13 +115,14 @@ DEFAULTS = {
     "eval_heldout": True,
     "log_every": 10,
     "stability_solves": "each",
+    "solve_jobs": 0,
     "absent_below": 0.0,
     "solver_iters": 30,
 }
 
 #: Config keys that change how the loss is computed, not its value: a
 #: checkpoint resumes, and a stored run is reused, whatever they were.
-HOW_KEYS = ("stability_solves",)
+HOW_KEYS = ("stability_solves", "solve_jobs")
 
 #: Config keys read only by the stability term: runs with ``lam`` 0 do not
 #: differ by them.
@@ -156,6 +161,8 @@ def load_config(path: str, **overrides) -> dict:
         if not ok:
             raise ConfigError(f"{path}: config key {k!r} must be {type(d).__name__}, got {v!r}")
         cfg[k] = float(v) if isinstance(d, float) else v
+    if cfg["solve_jobs"] < 0:
+        raise ConfigError(f"{path}: config key 'solve_jobs' must be >= 0 (0: every core), got {cfg['solve_jobs']}")
     for k in ("steps", "batch", "n_pad", "m_pad", "p_pad", "c_pad", "slots", "chunk_pad", "checkpoint_every",
               "eval_every", "log_every", "solver_iters"):
         if cfg[k] < 1:
@@ -384,6 +391,14 @@ _GRAPH_KEYS = ("dilations", "logit_bound", "temperature", "under_weight", "share
 _OPT_KEYS = ("lr", "lr_schedule", "steps", "lr_final_frac", "clip")
 
 
+def solve_jobs(cfg: dict) -> int:
+    """Subsets solved at once (:func:`solve_subsets`): the config's
+    ``solve_jobs``, or with 0 the cores this process may run on."""
+    from ..batch import cpu_cores
+
+    return cfg["solve_jobs"] or cpu_cores()
+
+
 def make_fns(cfg: dict):
     """(probs_fn, step_fn, opt, terms, grad_fn): jit-compiled forward pass,
     training step ``step_fn(params, opt_state, lam, bw, x, valid, target,
@@ -403,12 +418,14 @@ def make_fns(cfg: dict):
     opt, update_fn = _optimizer(json.dumps({k: cfg[k] for k in _OPT_KEYS}, sort_keys=True))
     probs_fn, terms_c, grad_c = graph
     knobs = (np.float64(cfg["grad_floor"]), np.float64(cfg["brick_weight"]))
+    # subsets solved one at a time (Python functions, not jitted): solve_jobs at once
+    each = {"jobs": solve_jobs(cfg)} if cfg["stability_solves"] == "each" and cfg["lam"] > 0 else {}
 
     def terms(params, x, valid, target, fi, mask, inc, prob):
-        return terms_c(params, *knobs, x, valid, target, fi, mask, inc, prob)
+        return terms_c(params, *knobs, x, valid, target, fi, mask, inc, prob, **each)
 
     def grad_fn(params, lam, bw, *args):
-        return grad_c(params, lam, bw, *knobs, *args)
+        return grad_c(params, lam, bw, *knobs, *args, **each)
 
     def step_fn(params, opt_state, lam, bw, x, valid, target, sub: Subset):
         loss, aux, g = grad_fn(params, lam, bw, x, valid, target, *sub)
@@ -549,18 +566,18 @@ def _model_fns(key: str):
             return fid + bw * binar + (w * w_ct).sum(), (fid, binar)
         return jax.value_and_grad(f, has_aux=True)(params)
 
-    def stability(params, floor, x, valid, fi, mask, inc, probs):
+    def stability(params, floor, x, valid, fi, mask, inc, probs, jobs):
         """(value (B,), converged (B,), d value / d w (B, n_pad)) of each subset."""
         w = np.asarray(weights_fn(params, floor, x, valid, fi, mask, inc))
-        return solve_subsets(w, probs, opts, cfg["absent_below"])
+        return solve_subsets(w, probs, opts, cfg["absent_below"], jobs)
 
-    def terms_each(params, floor, brick_weight, x, valid, target, fi, mask, inc, probs):
+    def terms_each(params, floor, brick_weight, x, valid, target, fi, mask, inc, probs, jobs=1):
         fid, binar, _, _ = shape_fn(params, floor, brick_weight, x, valid, target)
-        val, conv, _ = stability(params, floor, x, valid, fi, mask, inc, probs)
+        val, conv, _ = stability(params, floor, x, valid, fi, mask, inc, probs, jobs)
         return fid, binar, np.float64(val.mean()), np.float64(conv.mean())
 
-    def grad_each(params, lam, bw, floor, brick_weight, x, valid, target, fi, mask, inc, probs):
-        val, conv, gw = stability(params, floor, x, valid, fi, mask, inc, probs)
+    def grad_each(params, lam, bw, floor, brick_weight, x, valid, target, fi, mask, inc, probs, jobs=1):
+        val, conv, gw = stability(params, floor, x, valid, fi, mask, inc, probs, jobs)
         stab = float(val.mean())
         (_, (fid, binar)), g = linear_grad(params, bw, floor, brick_weight, x, valid, target, fi, mask, inc,
                                            np.float64(lam) * gw / len(probs))
@@ -619,8 +636,8 @@ def _subset_term(opts, fields: tuple, below: float):
     return fn
 
 
-def solve_subsets(w: np.ndarray, probs, opts, below: float = 0.0):
-    """The stability term of each subset of a batch, one solve at a time.
+def solve_subsets(w: np.ndarray, probs, opts, below: float = 0.0, jobs: int = 1):
+    """The stability term of each subset of a batch, one solve per subset.
 
     w (B, n_pad): the subsets' existence weights (a problem's first bricks
     are its subset's); probs: B soft problems on their own rungs of the
@@ -628,12 +645,17 @@ def solve_subsets(w: np.ndarray, probs, opts, below: float = 0.0):
     solved by an executable compiled once for its shape (kept in memory
     and on disk, :func:`~stablelego_jax.solvers.compiled.compiled`).
     ``below``: the weight at or below which a placement is dropped
-    (:func:`present`). Returns (value (B,), converged (B,) bool,
-    d value / d w (B, n_pad)); value and gradient are 0 where a solve did
-    not converge."""
+    (:func:`present`). ``jobs``: solves run at once, each in a thread of
+    its own (XLA runs a CPU computation on the thread that calls it), the
+    largest problems first so that the threads finish together; every
+    solve is the same computation whatever ``jobs`` is. Returns (value
+    (B,), converged (B,) bool, d value / d w (B, n_pad)); value and
+    gradient are 0 where a solve did not converge."""
     B, n_pad = w.shape
     val, conv, grad = np.zeros(B), np.zeros(B, bool), np.zeros((B, n_pad))
-    for j, prob in enumerate(probs):
+
+    def solve(j):
+        prob = probs[j]
         n = prob.mass.shape[0]
         k = min(n, n_pad)
         wj = np.zeros(n)
@@ -642,6 +664,16 @@ def solve_subsets(w: np.ndarray, probs, opts, below: float = 0.0):
         arrays = (wj,) + arrays
         v, c, g = compiled("train-stability", _subset_term(opts, fields, below), (opts, fields, below), arrays)(*arrays)
         val[j], conv[j], grad[j, :k] = float(v), bool(c), np.asarray(g)[:k]
+
+    if jobs <= 1 or len(probs) <= 1:
+        for j in range(len(probs)):
+            solve(j)
+        return val, conv, grad
+    size = [sum(np.size(a) for a in p.flat()[1]) for p in probs]
+    order = sorted(range(len(probs)), key=lambda j: -size[j])
+    with concurrent.futures.ThreadPoolExecutor(min(jobs, len(probs))) as pool:
+        for f in [pool.submit(solve, j) for j in order]:
+            f.result()  # a solve's error, raised here
     return val, conv, grad
 
 
@@ -791,9 +823,11 @@ def train(cfg: dict, out: str, resume: bool = False, log=sys.stderr, max_steps: 
     ev_he = Arrays(held, cfg["crop"], cfg["grid"]) if cfg["eval_heldout"] else None
     lam = np.float64(cfg["lam"])
     stability = cfg["lam"] > 0
+    how = ("; lam 0: no stability term" if not stability else
+           f"; subsets solved {solve_jobs(cfg)} at a time, XLA's CPU pool {pool_threads()} threads"
+           if cfg["stability_solves"] == "each" else "")
     print(f"{len(train_shapes)} training shapes ({len(val)} validation, {len(held)} held out), from step {step} "
-          f"of {cfg['steps']}; the first step compiles" + ("" if stability else "; lam 0: no stability term"),
-          file=log, flush=True)
+          f"of {cfg['steps']}; the first step compiles{how}", file=log, flush=True)
     t0, s0 = time.perf_counter(), step
     done = 0
     with one_blas_thread():
@@ -838,14 +872,26 @@ def train(cfg: dict, out: str, resume: bool = False, log=sys.stderr, max_steps: 
 
 
 def run(config: str, out: str | None = None, resume: bool = False, seed: int | None = None,
-        lam: float | None = None, steps: int | None = None) -> int:
+        lam: float | None = None, steps: int | None = None, jobs: int | None = None,
+        widen_pool: bool = False) -> int:
     """``stablelego train``: load ``config``, train, write OUT/checkpoint.npz
-    and OUT/history.json; exit status (2: bad config, nothing written)."""
+    and OUT/history.json; exit status (2: bad config, nothing written).
+    ``seed``, ``lam``, ``steps``, ``jobs`` (``solve_jobs``): overrides.
+    ``widen_pool`` (the program, before JAX's backend starts): with
+    subsets solved one per call, XLA's CPU pool gets every core
+    (:func:`~stablelego_jax.blas.widen_xla_pool`): each solve's products
+    run on all of them, and ``solve_jobs`` solves run at once (with the
+    one-thread pool they queue for its thread)."""
     try:
-        cfg = load_config(config, seed=seed, lam=lam, steps=steps)
+        cfg = load_config(config, seed=seed, lam=lam, steps=steps, solve_jobs=jobs)
     except ConfigError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
+    if widen_pool and cfg["stability_solves"] == "each" and cfg["lam"] > 0:
+        from ..batch import cpu_cores
+        from ..blas import widen_xla_pool
+
+        widen_xla_pool(cpu_cores())
     out = out or os.path.join("out", f"train_lam{cfg['lam']:g}_seed{cfg['seed']}")
     t0 = time.perf_counter()
     try:
