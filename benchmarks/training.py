@@ -7,7 +7,8 @@
 Trains one generator per (lambda, seed) with ``stablelego train`` (``python -m stablelego_jax train``)
 (``--resume``: finished runs are reused if their stored config matches,
 else it stops with exit 2; interrupted ones continue from their
-checkpoint), at most ``--jobs`` at once, evaluates each on the
+checkpoint), at most ``--jobs`` at once (each given its share of the cores:
+``train --jobs`` and ``PJRT_NPROC``), evaluates each on the
 held-out shapes with ``stablelego evaluate`` (exact solver), scores
 the merge heuristic of ``stablelego_jax.generate.voxels`` on the same shapes
 (``--refine SECONDS``: also each run's filled decoding refined per shape by
@@ -33,6 +34,7 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 REPO = os.path.dirname(HERE)
 sys.path.insert(0, REPO)
 
+from stablelego_jax.batch import cpu_cores  # noqa: E402
 from stablelego_jax.files import atomic_write, atomic_write_text  # noqa: E402
 
 
@@ -40,9 +42,10 @@ from stablelego_jax.files import atomic_write, atomic_write_text  # noqa: E402
 DECODINGS = {"strict": "generator", "filled": "generator_filled"}
 
 
-def _run_all(cmds, jobs):
-    """Run (name, argv, log) commands, ``jobs`` at a time; {name: (rc, wall_s)}."""
-    env = dict(os.environ, OPENBLAS_NUM_THREADS="1", PYTHONPATH=REPO)
+def _run_all(cmds, jobs, extra_env=None):
+    """Run (name, argv, log) commands, ``jobs`` at a time, with ``extra_env``
+    added to their environment; {name: (rc, wall_s)}."""
+    env = dict(os.environ, OPENBLAS_NUM_THREADS="1", PYTHONPATH=REPO, **(extra_env or {}))
     pending, running, out = list(cmds), [], {}
     while pending or running:
         while pending and len(running) < jobs:
@@ -97,14 +100,16 @@ def main(argv=None) -> int:
                   f"pass another --runs folder", file=sys.stderr)
             return 2
     py = sys.executable
+    # the cores shared among the runs at once: each run's subset solves (train --jobs) and XLA pool
+    share = max(1, cpu_cores() // max(1, a.jobs))
     cmds = []
     for lam, s, d in todo:
         os.makedirs(d, exist_ok=True)
         cmds.append((f"train lam={lam:g} seed={s}", [py, "-m", "stablelego_jax", "train", "--config", a.config, "--lam", str(lam),
-                                                     "--seed", str(s), "--out", d, "--resume"],
+                                                     "--seed", str(s), "--out", d, "--resume", "--jobs", str(share)],
                      os.path.join(d, "train.log")))
     t0 = time.time()
-    for name, (rc, wall) in _run_all(cmds, a.jobs).items():
+    for name, (rc, wall) in _run_all(cmds, a.jobs, {"PJRT_NPROC": str(share)}).items():
         print(f"{name}: rc {rc}, {wall:.0f} s", file=sys.stderr)
         if rc != 0:
             print(f"error: {name} failed (see its train.log)", file=sys.stderr)
