@@ -57,6 +57,7 @@ __all__ = [
     "layer_levels",
     "layer_plan",
     "layer_bucket",
+    "factor_flops",
     "slab_levels",
     "levels_ok",
     "support_count",
@@ -418,7 +419,7 @@ def soft_plan(prob: SoftProblem) -> tuple:
     if n <= DENSE_MAX or Lp <= 1:
         return ("dense",)
     saving = SOFT_SOLVES * (plan_seconds(("dense", rung(n, MIN_BRICKS)), 0, 1) - plan_seconds(("layered", Lp, Bp), 0, 1))
-    if Lp * Bp ** 3 < n ** 3 / 9 or saving > SOFT_SHARE * SOFT_COMPILE_S:
+    if factor_flops(("layered", Lp, Bp)) < factor_flops(("dense", n)) or saving > SOFT_SHARE * SOFT_COMPILE_S:
         return ("layered", Lp, Bp)
     return ("dense",)
 
@@ -592,6 +593,17 @@ def layer_bucket(L: int, B: int) -> tuple[int, int]:
     return up(L, LAYER_RUNGS), up(B, SLOT_RUNGS)
 
 
+def factor_flops(key: tuple) -> float:
+    """Flops of one factorisation of bucket ``key`` over 648: ("dense", n)
+    n^3 / 9 (a Cholesky of 6 n rows, (6 n)^3 / 3 flops), ("layered", L, B)
+    or ("slabs", L, B, ...) L B^3 (block tridiagonal, ~3 L (6 B)^3): the
+    count by which :func:`solve_plan`, :func:`soft_plan` and
+    :func:`slab_levels` compare the forms."""
+    if key[0] == "dense":
+        return key[1] ** 3 / 9
+    return key[1] * key[2] ** 3
+
+
 def levels_ok(model: ForceModel, levels: np.ndarray, supports: str = "adjacent") -> bool:
     """Whether ``levels`` ((n,) int, one per real brick) can number the
     bricks of a block-tridiagonal factorisation: every column joins bricks
@@ -649,9 +661,9 @@ def slab_levels(model: ForceModel) -> np.ndarray | None:
         for w in SLAB_WIDTHS:
             lv = np.unique(np.floor(x / w + 1e-9).astype(np.int64), return_inverse=True)[1].ravel()
             if levels_ok(model, lv):
-                Lp, Bp = layer_bucket(len(np.unique(lv)), int(np.bincount(lv).max()))
-                if Lp * Bp ** 3 < best_cost:
-                    best, best_cost = lv.astype(np.int32), Lp * Bp ** 3
+                cost = factor_flops(("layered",) + layer_bucket(len(np.unique(lv)), int(np.bincount(lv).max())))
+                if cost < best_cost:
+                    best, best_cost = lv.astype(np.int32), cost
                 break
     return best
 
@@ -809,14 +821,15 @@ def solve_plan(model: ForceModel) -> tuple:
     L, B = layer_plan(model)
     layers = 1 < L < NOT_LAYERED
     Lp, Bp = layer_bucket(L, B) if layers else (1, B)
-    best, cost = ("dense", n_b), n_b ** 3 / 9
-    if layers and Lp * Bp ** 3 < cost:
-        best, cost = ("layered", Lp, Bp), Lp * Bp ** 3
+    best = ("dense", n_b)
+    if layers and factor_flops(("layered", Lp, Bp)) < factor_flops(best):
+        best = ("layered", Lp, Bp)
     if Bp > SLOT_RUNGS[-1] // 2 or not layers:  # slab_levels is host work: only for large layers
         lv = slab_levels(model)
         if lv is not None:
             Ls, Bs = layer_bucket(len(np.unique(lv)), int(np.bincount(lv).max()))
-            if Ls > 1 and Ls * Bs ** 3 <= (SLAB_GAIN if best[0] == "layered" else 1.0) * cost:
+            gain = SLAB_GAIN if best[0] == "layered" else 1.0
+            if Ls > 1 and factor_flops(("slabs", Ls, Bs)) <= gain * factor_flops(best):
                 k = support_count(model)
                 best = ("slabs", Ls, Bs, support_rung(k))
     return best
