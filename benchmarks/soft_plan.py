@@ -89,10 +89,8 @@ def subsets(a) -> int:
         print(f"{a.checkpoint}: step {step}", flush=True)
         for bi in range(1 + max(int(s[1:].split("s")[0]) for s in want)):
             raw.clear()
-            b = rng.choice(len(shapes), size=cfg["batch"], replace=False)
-            p = np.asarray(probs_fn(params, tr.x[b], tr.valid[b]))
-            sub = T.batch_subsets(p, tr.valid[b], cfg, rng, tr.span[b])
-            ps = np.take_along_axis(p.reshape(len(b), -1), sub.fi, axis=1) * sub.mask
+            _, _, _, p, sub = T.draw_batch(tr, cfg, rng, params, probs_fn)
+            ps = np.take_along_axis(p.reshape(len(p), -1), sub.fi, axis=1) * sub.mask
             w = np.asarray(net.subset_shares(jnp.asarray(ps), jnp.asarray(sub.inc), cfg["share_floor"],
                                              cfg["share_power"]))
             for j, prob in enumerate(sub.prob):

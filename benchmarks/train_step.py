@@ -60,10 +60,7 @@ def measure(cfg: dict, steps: int, lam: float) -> dict:
     with one_blas_thread():
         for step in range(steps):
             t0 = time.perf_counter()
-            b = rng.choice(len(shapes), size=cfg["batch"], replace=False)
-            x, valid, target = tr.x[b], tr.valid[b], tr.target[b]
-            p = np.asarray(probs_fn(params, x, valid))
-            sub = T.batch_subsets(p, valid, cfg, rng, tr.span[b])
+            x, valid, target, _, sub = T.draw_batch(tr, cfg, rng, params, probs_fn)
             bw = np.float64(T.bin_weight(cfg, step))
             params, opt_state, loss, aux = step_fn(params, opt_state, np.float64(lam), bw, x, valid, target, sub)
             loss = float(loss)
@@ -93,10 +90,7 @@ def compare_jobs(cfg: dict, steps: int, lam: float, jobs: list[int], checkpoint:
     identical = True
     with one_blas_thread():
         for step in range(steps):
-            b = rng.choice(len(shapes), size=cfg["batch"], replace=False)
-            x, valid, target = tr.x[b], tr.valid[b], tr.target[b]
-            p = np.asarray(probs_fn(params, x, valid))
-            sub = T.batch_subsets(p, valid, cfg, rng, tr.span[b])
+            x, valid, target, _, sub = T.draw_batch(tr, cfg, rng, params, probs_fn)
             bw = np.float64(T.bin_weight(cfg, start + step))
             order = jobs if step % 2 == 0 else jobs[::-1]
             res = {}

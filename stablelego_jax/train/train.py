@@ -376,6 +376,21 @@ def batch_subsets(p: np.ndarray, valid: np.ndarray, cfg: dict, rng: np.random.Ge
 # loss and step (jit)
 
 
+def draw_batch(arrays: Arrays, cfg: dict, rng: np.random.Generator, params=None, probs_fn=None):
+    """The next batch of a run, drawn with ``rng`` as :func:`train` draws
+    it: (x, valid, target, p, sub) of ``cfg["batch"]`` shapes of
+    ``arrays``; with ``probs_fn`` (and ``params``: the stability term) also
+    the placements' probabilities ``p`` (B, X, Y, Z, K) and the subsets
+    (:func:`batch_subsets`, which draws from ``rng`` too), else both None.
+    Benchmarks replay a checkpoint's next batches with it."""
+    b = rng.choice(len(arrays.names), size=cfg["batch"], replace=False)
+    x, valid, target = arrays.x[b], arrays.valid[b], arrays.target[b]
+    if probs_fn is None:
+        return x, valid, target, None, None
+    p = np.asarray(probs_fn(params, x, valid))
+    return x, valid, target, p, batch_subsets(p, valid, cfg, rng, arrays.span[b])
+
+
 def bin_weight(cfg: dict, step: int) -> float:
     """Weight of the binarization term at ``step``: linear from ``bin_weight``
     to ``bin_weight_final`` over the run (probabilities settle to 0/1 late,
@@ -832,12 +847,8 @@ def train(cfg: dict, out: str, resume: bool = False, log=sys.stderr, max_steps: 
     done = 0
     with one_blas_thread():
         while step < cfg["steps"] and (max_steps is None or done < max_steps):
-            b = rng.choice(len(train_shapes), size=cfg["batch"], replace=False)
-            x, valid, target = tr.x[b], tr.valid[b], tr.target[b]
-            if stability:
-                p = np.asarray(probs_fn(params, x, valid))
-                sub = batch_subsets(p, valid, cfg, rng, tr.span[b])
-            else:  # no stability term: no subsets
+            x, valid, target, _, sub = draw_batch(tr, cfg, rng, params, probs_fn if stability else None)
+            if sub is None:  # no stability term: no subsets
                 sub = Subset(None, None, None, None)
             bw = np.float64(bin_weight(cfg, step))
             params, opt_state, loss, aux = step_fn(params, opt_state, lam, bw, x, valid, target, sub)
