@@ -11,8 +11,8 @@ top 2 to n/3 bricks (by level) at weight 0, 1e-17 or 1e-60 and the rest at 1
 budget, and by weight.
 
 ``threshold``: batches drawn from a training checkpoint as training draws
-them (the subsets of ``batch_subsets``, weights from ``net.subset_shares``
-of the subset's probabilities), each subset that did not converge at the
+them (the subsets of ``batch_subsets``, weights from ``train.batch_weights``,
+the shares of the subset's probabilities), each subset that did not converge at the
 first threshold or has placements of weight at most 1e-2 solved by
 ``train.solve_subsets`` at every ``--below`` (``absent_below``); prints
 converged, placements dropped, the summed brick loss, and, where both
@@ -75,27 +75,20 @@ def clusters(a) -> int:
 
 
 def threshold(a) -> int:
-    import jax.numpy as jnp
-
     from stablelego_jax.blas import one_blas_thread
     from stablelego_jax.runtime import float64
-    from stablelego_jax.train import net
     from stablelego_jax.train import train as T
 
     cfg = T.load_config(a.config, lam=1000.0)
     below = [float(v) for v in a.below.split(",")]
     with float64(), one_blas_thread():
-        params, _, step, rng, _, _ = T.load_checkpoint(a.checkpoint, cfg)
-        shapes = T.dataset(cfg, validation=True)[0]
-        tr = T.Arrays(shapes, cfg["crop"], cfg["grid"])
+        run = T.replay(a.checkpoint, cfg)
         probs_fn = T.make_fns(cfg)[0]
         opts = T.loss_options(cfg)
-        print(f"{a.checkpoint}: step {step}", flush=True)
+        print(f"{a.checkpoint}: step {run.step}", flush=True)
         for bi in range(a.batches):
-            _, _, _, p, sub = T.draw_batch(tr, cfg, rng, params, probs_fn)
-            ps = np.take_along_axis(p.reshape(len(p), -1), sub.fi, axis=1) * sub.mask
-            w = np.asarray(net.subset_shares(jnp.asarray(ps), jnp.asarray(sub.inc), cfg["share_floor"],
-                                             cfg["share_power"]))
+            x, valid, _, _, sub = T.draw_batch(run.arrays, cfg, run.rng, run.params, probs_fn)
+            w = T.batch_weights(cfg, run.params, x, valid, sub)
             for j, prob in enumerate(sub.prob):
                 wj = w[j:j + 1]
                 real = wj[0][: int(sub.mask[j].sum())]

@@ -61,12 +61,9 @@ def cuboids(a) -> int:
 
 
 def subsets(a) -> int:
-    import jax.numpy as jnp
-
     from stablelego_jax.blas import one_blas_thread
     from stablelego_jax.runtime import float64
     from stablelego_jax.solvers import problem as P
-    from stablelego_jax.train import net
     from stablelego_jax.train import train as T
 
     cfg = T.load_config(a.config, lam=1000.0)
@@ -81,18 +78,14 @@ def subsets(a) -> int:
     T.plan_soft = capture
     choose = P.soft_plan
     with float64(), one_blas_thread():
-        params, _, step, rng, _, _ = T.load_checkpoint(a.checkpoint, cfg)
-        shapes = T.dataset(cfg, validation=True)[0]
-        tr = T.Arrays(shapes, cfg["crop"], cfg["grid"])
+        run = T.replay(a.checkpoint, cfg)
         probs_fn = T.make_fns(cfg)[0]
         opts = T.loss_options(cfg)
-        print(f"{a.checkpoint}: step {step}", flush=True)
+        print(f"{a.checkpoint}: step {run.step}", flush=True)
         for bi in range(1 + max(int(s[1:].split("s")[0]) for s in want)):
             raw.clear()
-            _, _, _, p, sub = T.draw_batch(tr, cfg, rng, params, probs_fn)
-            ps = np.take_along_axis(p.reshape(len(p), -1), sub.fi, axis=1) * sub.mask
-            w = np.asarray(net.subset_shares(jnp.asarray(ps), jnp.asarray(sub.inc), cfg["share_floor"],
-                                             cfg["share_power"]))
+            x, valid, _, _, sub = T.draw_batch(run.arrays, cfg, run.rng, run.params, probs_fn)
+            w = T.batch_weights(cfg, run.params, x, valid, sub)
             for j, prob in enumerate(sub.prob):
                 if f"b{bi}s{j}" not in want:
                     continue

@@ -79,11 +79,10 @@ def compare_jobs(cfg: dict, steps: int, lam: float, jobs: list[int], checkpoint:
     warm-up. {jobs: [...], step_s: {count: [s per timed batch]}, ratio:
     median of the first count's time over each other's, identical: bool}."""
     fns = {j: T.make_fns(dict(cfg, solve_jobs=j)) for j in jobs}
-    shapes = T.dataset(cfg, validation=True)[0]
-    tr = T.Arrays(shapes, cfg["crop"], cfg["grid"])
     if checkpoint:
-        params, _, start, rng, _, _ = T.load_checkpoint(checkpoint, cfg)
+        params, start, rng, _, tr = T.replay(checkpoint, cfg)
     else:
+        tr = T.Arrays(T.dataset(cfg, validation=True)[0], cfg["crop"], cfg["grid"])
         params, start, rng = T.initial_params(cfg), 0, np.random.default_rng(cfg["seed"])
     probs_fn = fns[jobs[0]][0]
     times = {j: [] for j in jobs}

@@ -298,13 +298,42 @@ def test_coverage_sums_every_placement_window_and_its_gradient():
         assert np.isclose(g[b, x, y, z, k], u[b, x:x + sx, y:y + sy, z].sum(), rtol=1e-12)
 
 
-def test_checkpoint_resume_continues_exactly(tmp_path):
+def test_checkpoint_resume_continues_exactly_and_replay_draws_its_next_batch(tmp_path, monkeypatch):
+    """A resumed run ends where an uninterrupted one does; replay() of the
+    checkpoint draws the batch the resumed run draws next, and
+    batch_weights gives its subsets' shares of the probabilities."""
     cfg = _cfg(tmp_path)
     p_full, h_full = T.train(cfg, str(tmp_path / "a"), log=open(os.devnull, "w"))
     T.train(cfg, str(tmp_path / "b"), log=open(os.devnull, "w"), max_steps=2)
     z = np.load(tmp_path / "b" / "checkpoint.npz")
     assert int(z["step"]) == 2 and "param_0" in z.files and "opt_0" in z.files
+    run = T.replay(str(tmp_path / "b" / "checkpoint.npz"))
+    assert run.step == 2 and T.config_diff(run.cfg, cfg) == []
+    probs_fn = T.make_fns(run.cfg)[0]
+    x, valid, _, p, sub = T.draw_batch(run.arrays, run.cfg, run.rng, run.params, probs_fn)
+    assert cfg["share_scope"] == "all"  # shares of every placement covering a cell, then the subset's
+    w = T.batch_weights(run.cfg, run.params, x, valid, sub)
+    wts = np.asarray(net.existence_weights(p, net.coverage(p), cfg["share_floor"]))
+    expected = np.take_along_axis(wts.reshape(len(p), -1), sub.fi, axis=1) * sub.mask
+    assert w.shape == sub.fi.shape and (w[sub.mask == 0] == 0).all() and w.max() > 0
+    np.testing.assert_allclose(w, expected, rtol=1e-12, atol=1e-300)
+    # "subset": shares among the subset's own placements
+    w = T.batch_weights(dict(run.cfg, share_scope="subset"), run.params, x, valid, sub)
+    ps = np.take_along_axis(p.reshape(len(p), -1), sub.fi, axis=1) * sub.mask
+    expected = np.asarray(net.subset_shares(ps, sub.inc, cfg["share_floor"], cfg["share_power"]))
+    np.testing.assert_allclose(w, expected, rtol=1e-12, atol=1e-300)
+    drawn = []
+    draw = T.draw_batch
+
+    def recording(*args, **kw):
+        out = draw(*args, **kw)
+        drawn.append(out)
+        return out
+
+    monkeypatch.setattr(T, "draw_batch", recording)
     p_res, h_res = T.train(cfg, str(tmp_path / "b"), resume=True, log=open(os.devnull, "w"))
+    np.testing.assert_array_equal(drawn[0][0], x)
+    np.testing.assert_array_equal(drawn[0][4].fi, sub.fi)
     for (w1, b1), (w2, b2) in zip(p_full, p_res):
         np.testing.assert_array_equal(np.asarray(w1), np.asarray(w2))
         np.testing.assert_array_equal(np.asarray(b1), np.asarray(b2))

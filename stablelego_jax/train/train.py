@@ -414,6 +414,20 @@ def solve_jobs(cfg: dict) -> int:
     return cfg["solve_jobs"] or cpu_cores()
 
 
+def _graph(cfg: dict):
+    """:func:`_model_fns` of ``cfg``'s graph keys (one per network and loss shape)."""
+    # lam 0: a graph without the stability term (its soft solves cost nearly all of a step)
+    return _model_fns(json.dumps(dict({k: cfg[k] for k in _GRAPH_KEYS}, stability=cfg["lam"] > 0,
+                                      solves=cfg["stability_solves"]), sort_keys=True))
+
+
+def batch_weights(cfg: dict, params, x, valid, sub: Subset) -> np.ndarray:
+    """(B, n_pad) existence weights of a batch's subsets (``sub``, from
+    :func:`draw_batch`) as the stability term of ``cfg`` sees them: the
+    generator's probabilities as shares (``share_scope``), 0 on padding."""
+    return np.asarray(_graph(cfg)[3](params, np.float64(cfg["grad_floor"]), x, valid, sub.fi, sub.mask, sub.inc))
+
+
 def make_fns(cfg: dict):
     """(probs_fn, step_fn, opt, terms, grad_fn): jit-compiled forward pass,
     training step ``step_fn(params, opt_state, lam, bw, x, valid, target,
@@ -427,11 +441,8 @@ def make_fns(cfg: dict):
     and ``grad_fn`` are Python functions around jitted pieces: the
     subsets' weights, each subset's solve (:func:`solve_subsets`) and the
     network's gradient through the weights."""
-    # lam 0: a graph without the stability term (its soft solves cost nearly all of a step)
-    graph = _model_fns(json.dumps(dict({k: cfg[k] for k in _GRAPH_KEYS}, stability=cfg["lam"] > 0,
-                                       solves=cfg["stability_solves"]), sort_keys=True))
     opt, update_fn = _optimizer(json.dumps({k: cfg[k] for k in _OPT_KEYS}, sort_keys=True))
-    probs_fn, terms_c, grad_c = graph
+    probs_fn, terms_c, grad_c, _ = _graph(cfg)
     knobs = (np.float64(cfg["grad_floor"]), np.float64(cfg["brick_weight"]))
     # subsets solved one at a time (Python functions, not jitted): solve_jobs at once
     each = {"jobs": solve_jobs(cfg)} if cfg["stability_solves"] == "each" and cfg["lam"] > 0 else {}
@@ -489,8 +500,10 @@ def loss_options(cfg: dict):
 
 @functools.lru_cache(maxsize=8)
 def _model_fns(key: str):
-    """(probs_fn, terms, grad_fn) jitted for the graph keys in ``key``; terms
-    and grad_fn take (grad_floor, brick_weight) after params / lam, bw."""
+    """(probs_fn, terms, grad_fn, weights_fn) jitted for the graph keys in
+    ``key``; terms and grad_fn take (grad_floor, brick_weight) after
+    params / lam, bw; weights_fn (params, grad_floor, x, valid, fi, mask,
+    inc) gives the subsets' existence weights (B, n_pad)."""
     cfg = json.loads(key)
     import jax
     import jax.numpy as jnp
@@ -560,17 +573,17 @@ def _model_fns(key: str):
         (loss, aux), g = jax.value_and_grad(total, has_aux=True)(params, lam, bw, floor, brick_weight, *args)
         return loss, aux, g
 
-    if cfg["solves"] == "batch" or not cfg["stability"]:
-        return probs_fn, jax.jit(terms), grad_fn
-
-    # one subset at a time: the stability term's value and its gradient with respect
-    # to the weights from each shape's own compiled solve, then the network's
-    # gradient through the weights as that of sum(w * cotangent)
     @jax.jit
     def weights_fn(params, floor, x, valid, fi, mask, inc):
         _, p_g, cov = forward(params, floor, x, valid)
         return subset_weights(p_g, cov, fi, mask, inc)
 
+    if cfg["solves"] == "batch" or not cfg["stability"]:
+        return probs_fn, jax.jit(terms), grad_fn, weights_fn
+
+    # one subset at a time: the stability term's value and its gradient with respect
+    # to the weights from each shape's own compiled solve, then the network's
+    # gradient through the weights as that of sum(w * cotangent)
     shape_fn = jax.jit(shape_terms)
 
     @jax.jit
@@ -599,7 +612,7 @@ def _model_fns(key: str):
         loss = fid + bw * binar + lam * stab
         return loss, (fid, binar, np.float64(stab), np.float64(conv.mean())), g
 
-    return probs_fn, terms_each, grad_each
+    return probs_fn, terms_each, grad_each, weights_fn
 
 
 def present(w, prob, below: float):
@@ -749,6 +762,26 @@ def load_checkpoint(path: str, cfg: dict | None = None):
     rng = np.random.default_rng()
     rng.bit_generator.state = json.loads(str(data["rng_state"]))
     return params, opt_state, int(data["step"]), rng, stored, json.loads(str(data["history"]))
+
+
+class Replay(NamedTuple):
+    """A run as its checkpoint left it (:func:`replay`)."""
+
+    params: object
+    step: int
+    rng: np.random.Generator
+    cfg: dict
+    arrays: Arrays  # its training shapes, from which draw_batch draws
+
+
+def replay(checkpoint: str, cfg: dict | None = None) -> Replay:
+    """The run of ``checkpoint`` where it stopped: ``draw_batch(r.arrays,
+    r.cfg, r.rng, r.params, probs_fn)`` draws the batches it would draw
+    next (the parameters held). cfg: the stored config unless given.
+    Benchmarks replay a run's solves with it."""
+    params, _, step, rng, stored, _ = load_checkpoint(checkpoint, cfg)
+    cfg = stored if cfg is None else cfg
+    return Replay(params, step, rng, cfg, Arrays(dataset(cfg, validation=True)[0], cfg["crop"], cfg["grid"]))
 
 
 # --------------------------------------------------------------------------
