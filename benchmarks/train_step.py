@@ -80,7 +80,8 @@ def compare_jobs(cfg: dict, steps: int, lam: float, jobs: list[int], checkpoint:
     median of the first count's time over each other's, identical: bool}."""
     fns = {j: T.make_fns(dict(cfg, solve_jobs=j)) for j in jobs}
     if checkpoint:
-        params, start, rng, _, tr = T.replay(checkpoint, cfg)
+        run = T.replay(checkpoint, cfg)
+        params, start, rng, tr = run.params, run.step, run.rng, run.arrays
     else:
         tr = T.Arrays(T.dataset(cfg, validation=True)[0], cfg["crop"], cfg["grid"])
         params, start, rng = T.initial_params(cfg), 0, np.random.default_rng(cfg["seed"])
