@@ -472,7 +472,9 @@ def stabilize(vox: np.ndarray, opts: StabilizeOptions = StabilizeOptions(), sour
             raise ValueError(f"{source}: the start layout does not cover exactly the shape's cells")
     else:
         start = merge_voxels(vox, seed=0, bricks=opts.bricks, source=source)
-    start_a = check(start, canonical=True)  # the likeliest answer: solved as it is reported
+    # the heuristic merge, the likeliest answer, is solved as it is reported; a given start (a
+    # generator's decoding, often failing and large: a canonical solve can take a minute) by the judge
+    start_a = check(start) if given else check(start, canonical=True)
     best, best_a, how = start, start_a, "start" if given else "heuristic"
     say(f"{'start cover' if given else 'heuristic merge'}: {start.n} bricks, {merit(start_a)[0]} failing")
     if start_a.stable:
