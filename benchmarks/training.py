@@ -2,7 +2,7 @@
 
     python benchmarks/training.py [--config stablelego_jax/train/configs/default.json]
         [--lams 0,LAM] [--seeds 0,1,2] [--runs out/training_runs] [--jobs 2] [--refine SECONDS]
-        [--results benchmarks/results]
+        [--heldout heldout.jsonl] [--results benchmarks/results]
 
 Trains one generator per (lambda, seed) with ``stablelego train`` (``python -m stablelego_jax train``)
 (``--resume``: finished runs are reused if their stored config matches,
@@ -13,7 +13,9 @@ held-out shapes with ``stablelego evaluate`` (exact solver), scores
 the merge heuristic of ``stablelego_jax.generate.voxels`` on the same shapes
 (``--refine SECONDS``: also each run's filled decoding refined per shape by
 ``stabilize``'s re-merge rounds, ``evaluate --refine``; issue 19's "generator +
-refinement"), and writes ``RESULTS/training.json`` and
+refinement"; ``--heldout NAME``: each run's evaluation file, in its run
+folder, written when missing and read, so that evaluations with other
+``--refine`` budgets sit beside one another), and writes ``RESULTS/training.json`` and
 ``RESULTS/training_curves.png`` (``--results``, default
 ``benchmarks/results``); prints a markdown table. Target (issue 6): the stability term raises the held-out
 stable fraction by >= 20 percentage points at a cost of at most 0.02 IoU
@@ -76,6 +78,8 @@ def main(argv=None) -> int:
     ap.add_argument("--results", default=os.path.join(HERE, "results"))
     ap.add_argument("--refine", type=float, default=None, metavar="SECONDS",
                     help="also refine each filled decoding (evaluate --refine SECONDS)")
+    ap.add_argument("--heldout", default="heldout.jsonl", metavar="NAME",
+                    help="each run's evaluation file in its run folder (default heldout.jsonl)")
     a = ap.parse_args(argv)
     lams = [float(x) for x in (a.lams or "0,1000").split(",")]
     seeds = [int(x) for x in a.seeds.split(",")]
@@ -117,7 +121,7 @@ def main(argv=None) -> int:
     train_wall = time.time() - t0
     cmds = []
     for (lam, s), d in runs.items():
-        res = os.path.join(d, "heldout.jsonl")
+        res = os.path.join(d, a.heldout)
         if not os.path.exists(res):
             argv_ = [py, "-m", "stablelego_jax", "evaluate", "--checkpoint", os.path.join(d, "checkpoint.npz"), "--out", res]
             if lam == lams[0]:
@@ -140,7 +144,7 @@ def main(argv=None) -> int:
                 "mean_bricks": float(np.mean([r["n_bricks"] for r in rs]))}
 
     for (lam, s), d in runs.items():
-        rows = _rows(os.path.join(d, "heldout.jsonl"))
+        rows = _rows(os.path.join(d, a.heldout))
         h = [r for r in rows if r["method"] == "heuristic"]
         if h:
             heur = stats(h)

@@ -56,7 +56,10 @@ def test_a_given_start_cover_is_refined_and_a_wrong_one_refused():
     # a start that already stands is the answer (this shape's merge stands)
     good = merge_voxels(vox, seed=0)
     g = stabilize(vox, StabilizeOptions(seeds=1, gradient=False), start=good)
-    assert g.stable and g.method == "start" and g.bricks_changed == 0 and g.exact_calls == 1
+    # a given start is solved by the judge, and canonically once the judge says it stands
+    assert g.stable and g.method == "start" and g.bricks_changed == 0 and g.exact_calls == 2
+    c = stabilize(vox, StabilizeOptions(seeds=1, gradient=False, judge="canonical"), start=good)
+    assert c.stable and c.method == "start" and c.exact_calls == 1
     # a start that covers other cells
     with pytest.raises(ValueError, match="shape.b: the start layout does not cover exactly"):
         stabilize(vox, StabilizeOptions(seeds=1), source="shape.b", start=brick_layout(cells[:-1], np.ones(

@@ -411,7 +411,8 @@ def stabilize(vox: np.ndarray, opts: StabilizeOptions = StabilizeOptions(), sour
     docstring); brick coordinates are the grid's indices. ``start``: an
     exact cover of ``vox`` to begin from instead of the heuristic merge with
     seed 0 (a generator's decoding to refine; the seeds are still tried
-    after it, ``seeds=1`` for none); ValueError if it covers other cells."""
+    after it, ``seeds=1`` for none; it is solved by ``opts.judge`` first, the
+    merge canonically first); ValueError if it covers other cells."""
     t0 = time.perf_counter()
     say = progress or (lambda s: None)
     types = oriented(opts.bricks)
