@@ -40,6 +40,19 @@ def test_local_re_merge_makes_a_falling_blob_stand_on_the_same_cells():
     assert r.exact_calls >= 2 and r.soft_calls == 0
 
 
+def test_a_refinement_follows_one_path_whatever_its_budget():
+    # benchmarks/refine_budget.py relies on it: what stands within one budget
+    # stands at the same point, with the same solves, within a longer one
+    vox = random_voxel_shape(1, grid=8, kind="boxes")
+    from stablelego_jax.layout import brick_layout
+
+    ones = brick_layout(np.argwhere(vox), np.ones((int(vox.sum()), 2), int), source="ones")
+    a, b = (stabilize(vox, StabilizeOptions(seeds=1, gradient=False, rounds=12, time_s=t), start=ones)
+            for t in (300.0, 900.0))
+    assert (a.stable, a.method, a.exact_calls, a.rounds) == (b.stable, b.method, b.exact_calls, b.rounds)
+    assert a.exact_calls > 2 and np.array_equal(a.layout.pos, b.layout.pos) and np.array_equal(a.layout.size, b.layout.size)
+
+
 def test_a_given_start_cover_is_refined_and_a_wrong_one_refused():
     # the cover of 1x1 bricks falls apart (no knob holds a 1x1 to another side by
     # side); refined from it, the re-merge rounds reach a cover that stands

@@ -41,7 +41,7 @@ from ..runtime import x64
 from .train import (Arrays, decoded_layouts, initial_params, load_checkpoint, make_fns, score_decoded, score_layout,
                     split_shapes)
 
-__all__ = ["evaluate", "summary", "run"]
+__all__ = ["evaluate", "refined_rows", "summary", "run"]
 
 
 @x64
@@ -70,7 +70,7 @@ def evaluate(ckpt: str, split: str = "heldout", heuristic: bool = False, untrain
                              "seed": cfg["seed"], "step": st, "stable": stable, "iou": round(iou, 6),
                              "n_bricks": nb, "n_cells": int(s.vox.sum())})
     if refine is not None:
-        rows += _refined("generator_refined", shapes, filled, refine, log,
+        rows += refined_rows("generator_refined", shapes, filled, refine, log,
                          {"lam": cfg["lam"], "seed": cfg["seed"], "step": step})
     if heuristic:
         merged = [merge_voxels(s.vox, source=s.name) for s in shapes]
@@ -78,18 +78,20 @@ def evaluate(ckpt: str, split: str = "heldout", heuristic: bool = False, untrain
             rows.append({"shape": s.name, "kind": s.kind, "method": "heuristic", "stable": score_layout(lay),
                          "iou": 1.0, "n_bricks": lay.n, "n_cells": int(s.vox.sum())})
         if refine is not None:  # the control: the same refinement started from the merge
-            rows += _refined("heuristic_refined", shapes, merged, refine, log, {})
+            rows += refined_rows("heuristic_refined", shapes, merged, refine, log, {})
     return rows
 
 
-def _refined(method, shapes, starts, seconds, log, extra) -> list[dict]:
-    """Rows ``method``: each start cover (a Layout or None) refined by stabilize."""
+def refined_rows(method, shapes, starts, seconds, log=None, extra=None) -> list[dict]:
+    """Rows ``method``: each start cover (a Layout or None) of ``shapes``
+    refined by stabilize (no heuristic seeds, no gradient move, at most
+    ``seconds`` a shape); ``extra``: fields added to every row."""
     from ..generate.stabilize import StabilizeOptions, stabilize
 
     opts = StabilizeOptions(seeds=1, gradient=False, time_s=float(seconds))
     rows = []
     for i, (s, lay) in enumerate(zip(shapes, starts)):
-        row = {"shape": s.name, "kind": s.kind, "method": method, **extra, "n_cells": int(s.vox.sum())}
+        row = {"shape": s.name, "kind": s.kind, "method": method, **(extra or {}), "n_cells": int(s.vox.sum())}
         try:
             if lay is None:
                 raise ValueError("empty decoding")
