@@ -2,6 +2,7 @@
 
     python benchmarks/refine_budget.py --checkpoint RUN/checkpoint.npz --rows RUN/heldout_refine60.jsonl \\
         --first-seconds 60 --seconds 120 --out RUN/heldout_refine120.jsonl [--methods generator_refined,heuristic_refined]
+        [--split heldout|val|train]
 
 ``stablelego evaluate --refine SECONDS`` refines each shape's start cover
 with :func:`stablelego_jax.generate.stabilize.stabilize` (no heuristic seeds,
@@ -38,6 +39,8 @@ def main(argv=None) -> int:
     ap.add_argument("--seconds", type=float, required=True, help="the longer refinement budget, s a shape")
     ap.add_argument("--out", required=True)
     ap.add_argument("--methods", default="generator_refined,heuristic_refined")
+    ap.add_argument("--split", default="heldout", choices=("heldout", "val", "train"),
+                    help="the split --rows was evaluated on (evaluate --split)")
     a = ap.parse_args(argv)
 
     from stablelego_jax.blas import one_blas_thread
@@ -54,7 +57,7 @@ def main(argv=None) -> int:
         print(f"error: {a.rows}: no rows of {a.methods}", file=sys.stderr)
         return 2
     params, _, step, _, cfg, _ = T.load_checkpoint(a.checkpoint)
-    shapes = {s.name: s for s in T.split_shapes(cfg, "heldout")}
+    shapes = {s.name: s for s in T.split_shapes(cfg, a.split)}
     t0 = time.perf_counter()
     starts = {}
     if "generator_refined" in methods:
@@ -85,7 +88,7 @@ def main(argv=None) -> int:
     rows_out = kept + out
     atomic_write_text(a.out, "".join(json.dumps(r) + "\n" for r in rows_out))
     for m, s in summary(rows_out).items():
-        print(f"{m}: {s['n']} heldout shapes, stable {s['stable_fraction']:.3f}, mean IoU {s['mean_iou']:.4f}")
+        print(f"{m}: {s['n']} {a.split} shapes, stable {s['stable_fraction']:.3f}, mean IoU {s['mean_iou']:.4f}")
     print(f"wrote {a.out} ({time.perf_counter() - t0:.1f} s)", file=sys.stderr)
     return 0
 
