@@ -10,12 +10,18 @@ from stablelego_jax.formats.reader import load_layout
 from stablelego_jax.generate.stabilize import (StabilizeOptions, layout_voxels, merit, recover_region, stabilize,
                                                ungroundable_cells)
 from stablelego_jax.generate.voxels import merge_voxels, oriented, placements_in, random_voxel_shape
-from stablelego_jax.layout import TABLE_I_MASS_KG
+from stablelego_jax.layout import TABLE_I_MASS_KG, brick_layout
 
 
 def _blob():
     # a blob whose heuristic merge (seed 0) leaves bricks failing
     return random_voxel_shape(0, grid=8, kind="blob")
+
+
+def _unit_cover(vox):
+    # every cell its own 1x1 brick: an exact cover that falls apart (no knob
+    # holds a 1x1 to another side by side)
+    return brick_layout(np.argwhere(vox), np.ones((int(vox.sum()), 2), int), source="ones")
 
 
 def _covers_exactly(layout, vox, offset=(0, 0, 0)):
@@ -44,9 +50,7 @@ def test_a_refinement_follows_one_path_whatever_its_budget():
     # benchmarks/refine_budget.py relies on it: what stands within one budget
     # stands at the same point, with the same solves, within a longer one
     vox = random_voxel_shape(1, grid=8, kind="boxes")
-    from stablelego_jax.layout import brick_layout
-
-    ones = brick_layout(np.argwhere(vox), np.ones((int(vox.sum()), 2), int), source="ones")
+    ones = _unit_cover(vox)
     a, b = (stabilize(vox, StabilizeOptions(seeds=1, gradient=False, rounds=12, time_s=t), start=ones)
             for t in (300.0, 900.0))
     assert (a.stable, a.method, a.exact_calls, a.rounds) == (b.stable, b.method, b.exact_calls, b.rounds)
@@ -58,9 +62,7 @@ def test_a_given_start_cover_is_refined_and_a_wrong_one_refused():
     # side); refined from it, the re-merge rounds reach a cover that stands
     vox = random_voxel_shape(1, grid=8, kind="boxes")
     cells = np.argwhere(vox)
-    from stablelego_jax.layout import brick_layout
-
-    ones = brick_layout(cells, np.ones((len(cells), 2), int), source="ones")
+    ones = _unit_cover(vox)
     assert not analyze_layout(ones, solver="exact").stable
     r = stabilize(vox, StabilizeOptions(seeds=1, gradient=False, rounds=12), source="ones", start=ones)
     assert r.start is ones and r.method in ("random", "none")
@@ -249,7 +251,6 @@ def test_cli_writes_only_a_stable_layout(tmp_path, capsys):
     shifted = tmp_path / "shifted.json"
     start = merge_voxels(vox, seed=0)
     from stablelego_jax.formats.reader import write_layout
-    from stablelego_jax.layout import brick_layout
 
     write_layout(brick_layout(start.pos + np.array([5, 7, 0]), start.size), str(shifted))
     out2 = tmp_path / "stable2.json"
