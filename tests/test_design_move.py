@@ -33,6 +33,7 @@ def test_point_jacobian_predicts_moved_contact_points():
     assert (J[pair[:, 0] == sc.keys.index("1"), 1] == 0).all()  # the ground never moves
 
 
+@pytest.mark.slow
 def test_position_gradient_matches_central_differences():
     import jax
 

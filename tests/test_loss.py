@@ -229,6 +229,7 @@ def test_zero_temperature_recovers_eq10(name):
     np.testing.assert_array_equal(p > 0.5, failing)
 
 
+@pytest.mark.slow
 def test_layers_factored_at_their_own_size_give_the_same_loss_and_gradients():
     """A pyramid's layers (36 ... 1 bricks in 40 slots) each factored at the
     smallest cut that holds it and its neighbours (``cut_layers``) give the

@@ -129,6 +129,7 @@ print(json.dumps({{"stable": a.stable, "loaded": STATS.loaded, "compiles": STATS
     assert os.listdir(tmp_path / "cache" / "exported") and os.listdir(tmp_path / "cache" / "xla")
 
 
+@pytest.mark.slow
 def test_the_suites_xla_level_gives_the_shipped_answers():
     """The suite compiles at XLA's optimisation level 0 (tests/conftest.py);
     the shipped library at XLA's defaults. On the paper's examples both give

@@ -143,7 +143,7 @@ def test_a_dense_problem_alone_factors_its_real_bricks_only_with_the_same_answer
     np.testing.assert_allclose(float(cut.objective), float(full.objective), rtol=1e-9, atol=1e-12)
 
 
-@pytest.mark.parametrize("bricks", [120, 40])
+@pytest.mark.parametrize("bricks", [pytest.param(120, marks=pytest.mark.slow), 40])  # 120: the cut factor
 def test_dense_problems_assemble_the_rank_one_terms_from_supports_with_the_same_answer(bricks):
     """plan_problem gives a dense problem a support table (8 slots a brick;
     16 for a 2 x 6 brick on 12 unit bricks, each under one of its studs,
@@ -167,6 +167,7 @@ def test_dense_problems_assemble_the_rank_one_terms_from_supports_with_the_same_
         np.testing.assert_allclose(float(a.objective), float(b.objective), rtol=1e-9, atol=1e-12)
 
 
+@pytest.mark.slow
 def test_layered_problems_assembled_from_supports_give_the_per_level_products_answer():
     """A layered key with support slots (``("layered", L, B, K)``, what
     ``fit_plan`` gives a lone unit cube) assembles each brick's
@@ -295,6 +296,7 @@ def test_refinement_steps_do_not_change_the_answer():
     np.testing.assert_allclose([a.scores[k] for k in lay.keys], [ex.scores[k] for k in lay.keys], atol=1e-3)
 
 
+@pytest.mark.slow
 def test_layers_factored_with_sparse_couplings_give_the_same_answer():
     """IPMOptions.below (ipm.options_for): a layered problem of 64 slots a
     layer whose supports table holds every coupling between levels (an

@@ -408,10 +408,9 @@ def test_merge_plans_cuts_the_dense_chain_at_least_cost():
 def test_plan_soft_fits_the_padding_when_the_solves_pay_for_a_compile():
     """One solve: the shape its rung shares (soft_bucket, on the ladder's
     layers and slots); a caller that solves the problem many times gets a
-    padding fitted to it (its own layer count, fewer bricks and columns);
-    the same loss in the fitted, shared and ladder paddings."""
+    padding fitted to it (its own layer count, fewer bricks and columns).
+    Its loss in the three paddings: the slow test below."""
     from stablelego_jax.layout import brick_layout
-    from stablelego_jax.loss import stability_loss
     from stablelego_jax.solvers.problem import layer_soft, plan_soft, soft_bucket, soft_layer_plan
 
     # a box of 6 layers of 16 unit bricks, a 1 x 8 brick on top sticking 6 studs out, 0.5 kg hung on it
@@ -428,6 +427,21 @@ def test_plan_soft_fits_the_padding_when_the_solves_pay_for_a_compile():
     assert fitted.mass.shape[0] == -(-n // 8) * 8 < ladder.mass.shape[0]
     assert fitted.col_kind.shape[0] == -(-m // 64) * 64 < ladder.col_kind.shape[0]
     assert plan_soft(p, calls=2).layers.shape == (8, 16)  # a few solves do not pay for a compile
+
+
+@pytest.mark.slow
+def test_the_fitted_shared_and_ladder_paddings_give_the_same_loss():
+    """test_plan_soft_fits_the_padding_when_the_solves_pay_for_a_compile's
+    problem in its three paddings (three compiles): the same loss."""
+    from stablelego_jax.layout import brick_layout
+    from stablelego_jax.loss import stability_loss
+    from stablelego_jax.solvers.problem import layer_soft, plan_soft
+
+    box = cuboid(4, 4, 6)
+    p = compile_soft(brick_layout(np.concatenate([box.pos, [[2, 0, 6]]]),
+                                  np.concatenate([box.size, [[8, 1]]]))).problem
+    n = p.mass.shape[0]
+    ladder, fitted = plan_soft(p), plan_soft(p, calls=10 ** 6)
     losses = []
     for q in (ladder, fitted, pad_soft(layer_soft(p))):
         w, loads = np.zeros(q.mass.shape[0]), np.zeros(q.mass.shape[0])
@@ -530,6 +544,7 @@ def test_plan_soft_cuts_layers_when_many_solves_pay_for_the_branches():
         cut_layers(compile_soft(cuboid(2, 2, 1)).problem)
 
 
+@pytest.mark.slow
 @pytest.mark.usefixtures("x64")
 def test_padded_scene_positions_give_the_same_position_gradient():
     """pad_positions pads a scene's positions as plan_soft pads its soft
