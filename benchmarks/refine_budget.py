@@ -27,8 +27,11 @@ import os
 import sys
 import time
 
-REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+HERE = os.path.dirname(os.path.abspath(__file__))
+REPO = os.path.dirname(HERE)
 sys.path.insert(0, REPO)
+sys.path.insert(0, HERE)
+from rows import all_rows  # noqa: E402
 
 
 def main(argv=None) -> int:
@@ -50,8 +53,7 @@ def main(argv=None) -> int:
     from stablelego_jax.train import train as T
     from stablelego_jax.train.evaluate import refined_rows, summary
 
-    with open(a.rows) as fh:
-        rows = [json.loads(line) for line in fh if line.strip()]
+    rows = all_rows(a.rows)
     methods = [m for m in a.methods.split(",") if any(r["method"] == m for r in rows)]
     if not methods:
         print(f"error: {a.rows}: no rows of {a.methods}", file=sys.stderr)

@@ -21,16 +21,12 @@ missing or the validation rows of the seeds are not the same shapes.
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import sys
 
 HERE = os.path.dirname(os.path.abspath(__file__))
-
-
-def _rows(path: str) -> list[dict]:
-    with open(path) as fh:
-        return [json.loads(line) for line in fh if line.strip()]
+sys.path.insert(0, HERE)
+from rows import all_rows  # noqa: E402
 
 
 def _stable(rows: list[dict], method: str) -> dict[str, bool]:
@@ -58,8 +54,8 @@ def main(argv=None) -> int:
     budgets = [float(b) for b in a.budgets.split(",")]
     seeds = [int(s) for s in a.seeds.split(",")]
     try:
-        heur_val = _stable(_rows(os.path.join(a.runs, "val", "val_heuristic.jsonl")), "heuristic")
-        val = {b: [_stable(_rows(os.path.join(a.runs, "val", f"seed{s}_val_refine{b:g}.jsonl")), "generator_refined")
+        heur_val = _stable(all_rows(os.path.join(a.runs, "val", "val_heuristic.jsonl")), "heuristic")
+        val = {b: [_stable(all_rows(os.path.join(a.runs, "val", f"seed{s}_val_refine{b:g}.jsonl")), "generator_refined")
                    for s in seeds] for b in budgets}
     except OSError as e:
         print(f"error: {e.filename}: {e.strerror}", file=sys.stderr)
@@ -80,7 +76,7 @@ def main(argv=None) -> int:
     b, reached = choose(fracs, h)
     print(f"chosen budget: {b:g} s ({'reaches' if reached else 'does not reach'} the heuristic on validation)")
     try:
-        held = [_rows(os.path.join(a.runs, f"lam1000_seed{s}", f"heldout_refine{b:g}.jsonl")) for s in seeds]
+        held = [all_rows(os.path.join(a.runs, f"lam1000_seed{s}", f"heldout_refine{b:g}.jsonl")) for s in seeds]
     except OSError as e:
         print(f"error: {e.filename}: {e.strerror}", file=sys.stderr)
         return 2

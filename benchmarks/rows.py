@@ -22,6 +22,13 @@ def read_rows(path: str, key: str) -> dict:
     return out
 
 
+def all_rows(path: str) -> list[dict]:
+    """Every row of a finished JSON-lines file (blank lines skipped), in
+    order; a missing or malformed file raises (OSError, ValueError)."""
+    with open(path) as fh:
+        return [json.loads(line) for line in fh if line.strip()]
+
+
 def append_row(path: str, row: dict) -> None:
     """Append one row (one line) and flush it."""
     with open(path, "a") as fh:

@@ -39,6 +39,9 @@ sys.path.insert(0, REPO)
 from stablelego_jax.batch import cpu_cores  # noqa: E402
 from stablelego_jax.files import atomic_write, atomic_write_text  # noqa: E402
 
+sys.path.insert(0, HERE)
+from rows import all_rows  # noqa: E402
+
 
 #: decoding name -> evaluate's method name (see stablelego_jax.train.evaluate)
 DECODINGS = {"strict": "generator", "filled": "generator_filled"}
@@ -61,11 +64,6 @@ def _run_all(cmds, jobs, extra_env=None):
                 out[r[0]] = (r[1].returncode, time.time() - r[2])
                 running.remove(r)
     return out
-
-
-def _rows(path):
-    with open(path) as fh:
-        return [json.loads(line) for line in fh if line.strip()]
 
 
 def main(argv=None) -> int:
@@ -144,7 +142,7 @@ def main(argv=None) -> int:
                 "mean_bricks": float(np.mean([r["n_bricks"] for r in rs]))}
 
     for (lam, s), d in runs.items():
-        rows = _rows(os.path.join(d, a.heldout))
+        rows = all_rows(os.path.join(d, a.heldout))
         h = [r for r in rows if r["method"] == "heuristic"]
         if h:
             heur = stats(h)

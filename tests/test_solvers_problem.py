@@ -405,18 +405,24 @@ def test_merge_plans_cuts_the_dense_chain_at_least_cost():
         assert cost(heads) == pytest.approx(best, rel=1e-12)
 
 
+def _box_with_a_long_top_brick():
+    """The soft problem of a box of 6 layers of 16 unit bricks with a 1 x 8
+    brick on top sticking 6 studs out (the tests hang 0.5 kg on it)."""
+    from stablelego_jax.layout import brick_layout
+
+    box = cuboid(4, 4, 6)
+    return compile_soft(brick_layout(np.concatenate([box.pos, [[2, 0, 6]]]),
+                                     np.concatenate([box.size, [[8, 1]]]))).problem
+
+
 def test_plan_soft_fits_the_padding_when_the_solves_pay_for_a_compile():
     """One solve: the shape its rung shares (soft_bucket, on the ladder's
     layers and slots); a caller that solves the problem many times gets a
     padding fitted to it (its own layer count, fewer bricks and columns).
     Its loss in the three paddings: the slow test below."""
-    from stablelego_jax.layout import brick_layout
     from stablelego_jax.solvers.problem import layer_soft, plan_soft, soft_bucket, soft_layer_plan
 
-    # a box of 6 layers of 16 unit bricks, a 1 x 8 brick on top sticking 6 studs out, 0.5 kg hung on it
-    box = cuboid(4, 4, 6)
-    p = compile_soft(brick_layout(np.concatenate([box.pos, [[2, 0, 6]]]),
-                                  np.concatenate([box.size, [[8, 1]]]))).problem
+    p = _box_with_a_long_top_brick()
     L, B = soft_layer_plan(p)
     n, m = p.mass.shape[0], p.col_kind.shape[0]
     ladder, fitted = plan_soft(p), plan_soft(p, calls=10 ** 6)
@@ -433,13 +439,10 @@ def test_plan_soft_fits_the_padding_when_the_solves_pay_for_a_compile():
 def test_the_fitted_shared_and_ladder_paddings_give_the_same_loss():
     """test_plan_soft_fits_the_padding_when_the_solves_pay_for_a_compile's
     problem in its three paddings (three compiles): the same loss."""
-    from stablelego_jax.layout import brick_layout
     from stablelego_jax.loss import stability_loss
     from stablelego_jax.solvers.problem import layer_soft, plan_soft
 
-    box = cuboid(4, 4, 6)
-    p = compile_soft(brick_layout(np.concatenate([box.pos, [[2, 0, 6]]]),
-                                  np.concatenate([box.size, [[8, 1]]]))).problem
+    p = _box_with_a_long_top_brick()
     n = p.mass.shape[0]
     ladder, fitted = plan_soft(p), plan_soft(p, calls=10 ** 6)
     losses = []
