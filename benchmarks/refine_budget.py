@@ -17,7 +17,8 @@ and copies every other row. The starts are rebuilt as evaluate builds them
 Every row of those methods gets ``budget_s``: the budget it was refined
 with (``--first-seconds``: the one ``--rows`` was made with). Writes
 ``--out`` atomically (the same row format: ``benchmarks/training.py
---heldout`` summarises it) and prints the stable fraction per method.
+--heldout`` summarises it) and prints the stable fraction per method. A missing or
+malformed ``--rows`` file: one error line and exit 2, nothing written.
 """
 from __future__ import annotations
 
@@ -53,7 +54,14 @@ def main(argv=None) -> int:
     from stablelego_jax.train import train as T
     from stablelego_jax.train.evaluate import refined_rows, summary
 
-    rows = all_rows(a.rows)
+    try:
+        rows = all_rows(a.rows)
+    except OSError as e:
+        print(f"error: {a.rows}: {e.strerror}", file=sys.stderr)
+        return 2
+    except ValueError as e:
+        print(f"error: {a.rows}: not JSON lines ({e})", file=sys.stderr)
+        return 2
     methods = [m for m in a.methods.split(",") if any(r["method"] == m for r in rows)]
     if not methods:
         print(f"error: {a.rows}: no rows of {a.methods}", file=sys.stderr)
