@@ -1,22 +1,32 @@
-"""Issue 19, item 3: the refinement budget chosen on validation, and the held-out result at it.
+"""Issue 19, item 3: the refinement budget and the lambda chosen on validation, and the held-out result at them.
 
     python benchmarks/refine_validation.py [--runs benchmarks/results/train_full_s56] [--budgets 60,120]
+        [--lams 1000,0] [--seeds 0,1,2]
 
-Applies the rule of ``RUNS/val/PROTOCOL.md`` (committed before the runs):
-B = the smallest budget at which the mean over the seeds of
-generator_refined's stable fraction on the validation split is at least the
-merge heuristic's on the same shapes; if none, the budget with the higher
-mean (the larger on a tie). Reads
+Applies two rules, each committed before its runs:
 
-- ``RUNS/val/seed{K}_val_refine{B}.jsonl`` (``stablelego evaluate --split val
-  --refine 60``, then ``benchmarks/refine_budget.py --split val``),
+1. ``RUNS/val/PROTOCOL.md``: for the first lambda of ``--lams`` (the one
+   chosen without refinement), B = the smallest budget at which the mean
+   over the seeds of generator_refined's stable fraction on the validation
+   split is at least the merge heuristic's on the same shapes; if none, the
+   budget with the higher mean (the larger on a tie).
+2. ``RUNS/val/PROTOCOL_LAMBDA.md``: at B, L = the lambda of ``--lams`` with
+   the higher validation mean; the first one on a tie.
+
+Reads
+
+- ``RUNS/val/seed{K}_val_refine{B}.jsonl`` (lambda 1000) and
+  ``RUNS/val/lam{L}_seed{K}_val_refine{B}.jsonl`` (any other lambda):
+  ``stablelego evaluate --split val --refine 60`` (then
+  ``benchmarks/refine_budget.py --split val`` for a longer budget),
 - ``RUNS/val/val_heuristic.jsonl`` (``stablelego evaluate --split val
   --heuristic``),
-- ``RUNS/lam1000_seed{K}/heldout_refine{B}.jsonl`` and the heuristic rows in
-  them (the held-out figures, read only after the choice),
+- ``RUNS/lam{L}_seed{K}/heldout_refine{B}.jsonl`` and the heuristic rows in
+  them (the held-out figures, read only after the choices),
 
-and prints one table per split and the choice. Exit 2 when a file is
-missing or the validation rows of the seeds are not the same shapes.
+and prints one table per choice and the held-out result at each. Exit 2
+when a file is missing or malformed, or the validation rows of a run are
+not the heuristic's shapes.
 """
 from __future__ import annotations
 
@@ -29,13 +39,33 @@ sys.path.insert(0, HERE)
 from rows import all_rows  # noqa: E402
 
 
+class Missing(Exception):
+    """A results file that cannot be read: its one-line reason."""
+
+
 def _stable(rows: list[dict], method: str) -> dict[str, bool]:
     """shape -> stood by HiGHS, for one method's rows."""
     return {r["shape"]: bool(r["stable"]) for r in rows if r["method"] == method}
 
 
+def _read(path: str) -> list[dict]:
+    try:
+        return all_rows(path)
+    except OSError as e:
+        raise Missing(f"{path}: {e.strerror}") from None
+    except ValueError as e:
+        raise Missing(f"{path}: not JSON lines ({e})") from None
+
+
+def val_path(runs: str, lam: float, seed: int, budget: float) -> str:
+    """The validation rows of one lambda, seed and budget (lambda 1000's
+    carry no lambda in their name: they were the first)."""
+    tag = "" if lam == 1000 else f"lam{lam:g}_"
+    return os.path.join(runs, "val", f"{tag}seed{seed}_val_refine{budget:g}.jsonl")
+
+
 def choose(val: dict[float, list[float]], heuristic: float) -> tuple[float, bool]:
-    """The rule: (budget, whether it reaches the heuristic). ``val`` maps a
+    """Rule 1: (budget, whether it reaches the heuristic). ``val`` maps a
     budget (s) to the seeds' validation stable fractions."""
     means = {b: sum(f) / len(f) for b, f in val.items()}
     reached = sorted(b for b, m in means.items() if m >= heuristic)
@@ -45,47 +75,76 @@ def choose(val: dict[float, list[float]], heuristic: float) -> tuple[float, bool
     return max(b for b, m in means.items() if m == best), False
 
 
+def choose_lambda(val: dict[float, list[float]]) -> float:
+    """Rule 2: the lambda whose seeds' validation stable fractions have the
+    higher mean; the first key of ``val`` on a tie."""
+    means = {lam: sum(f) / len(f) for lam, f in val.items()}
+    best = max(means.values())
+    return next(lam for lam, m in means.items() if m == best)
+
+
+def _fractions(runs, lam, seeds, budget, heur_val) -> list[float]:
+    """The seeds' generator_refined stable fractions on validation."""
+    out = []
+    for s in seeds:
+        path = val_path(runs, lam, s, budget)
+        d = _stable(_read(path), "generator_refined")
+        if set(d) != set(heur_val):
+            raise Missing(f"{path}: validation shapes differ from the heuristic's")
+        out.append(sum(d.values()) / len(heur_val))
+    return out
+
+
+def _table(label: str, fracs: dict[float, list[float]], seeds: list[int], unit: str) -> None:
+    print(f"| {label} | " + " | ".join(f"seed {s}" for s in seeds) + " | mean |")
+    print("|---|" + "---|" * (len(seeds) + 1))
+    for k, f in fracs.items():
+        print(f"| {k:g}{unit} | " + " | ".join(f"{x:.3f}" for x in f) + f" | {sum(f) / len(f):.3f} |")
+
+
+def _heldout(runs, lam, seeds, budget) -> str:
+    held = [_read(os.path.join(runs, f"lam{lam:g}_seed{s}", f"heldout_refine{budget:g}.jsonl")) for s in seeds]
+    hh = _stable(held[0], "heuristic")
+    g = [sum(_stable(r, "generator_refined").values()) / len(hh) for r in held]
+    hf = sum(hh.values()) / len(hh)
+    return (f"held-out ({len(hh)} shapes), lambda {lam:g} at {budget:g} s: generator + refinement "
+            + ", ".join(f"{x:.3f}" for x in g) + f" (mean {sum(g) / len(g):.3f}); merge heuristic {hf:.3f}: "
+            + ("target met" if sum(g) / len(g) >= hf else "target not met"))
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--runs", default=os.path.join(HERE, "results", "train_full_s56"))
     ap.add_argument("--budgets", default="60,120")
+    ap.add_argument("--lams", default="1000,0", help="the first: the lambda chosen without refinement")
     ap.add_argument("--seeds", default="0,1,2")
     a = ap.parse_args(argv)
     budgets = [float(b) for b in a.budgets.split(",")]
+    lams = [float(x) for x in a.lams.split(",")]
     seeds = [int(s) for s in a.seeds.split(",")]
     try:
-        heur_val = _stable(all_rows(os.path.join(a.runs, "val", "val_heuristic.jsonl")), "heuristic")
-        val = {b: [_stable(all_rows(os.path.join(a.runs, "val", f"seed{s}_val_refine{b:g}.jsonl")), "generator_refined")
-                   for s in seeds] for b in budgets}
-    except OSError as e:
-        print(f"error: {e.filename}: {e.strerror}", file=sys.stderr)
+        heur_val = _stable(_read(os.path.join(a.runs, "val", "val_heuristic.jsonl")), "heuristic")
+        n = len(heur_val)
+        h = sum(heur_val.values()) / n
+        print(f"validation ({n} shapes): merge heuristic {sum(heur_val.values())}/{n} = {h:.3f}")
+        fracs = {b: _fractions(a.runs, lams[0], seeds, b, heur_val) for b in budgets}
+        print(f"rule 1, the budget (lambda {lams[0]:g}):")
+        _table("budget", fracs, seeds, " s")
+        b, reached = choose(fracs, h)
+        print(f"chosen budget: {b:g} s ({'reaches' if reached else 'does not reach'} the heuristic on validation)")
+        print(_heldout(a.runs, lams[0], seeds, b))
+        if len(lams) > 1:
+            by_lam = {lam: (fracs[b] if lam == lams[0] else _fractions(a.runs, lam, seeds, b, heur_val))
+                      for lam in lams}
+            print(f"rule 2, the lambda at {b:g} s:")
+            _table("lambda", by_lam, seeds, "")
+            lam = choose_lambda(by_lam)
+            m = sum(by_lam[lam]) / len(seeds)
+            print(f"chosen lambda: {lam:g} ({'reaches' if m >= h else 'does not reach'} the heuristic on validation)")
+            print(_heldout(a.runs, lam, seeds, b))
+    except Missing as e:
+        print(f"error: {e}", file=sys.stderr)
         return 2
-    for b, per_seed in val.items():
-        for s, d in zip(seeds, per_seed):
-            if set(d) != set(heur_val):
-                print(f"error: seed {s} at {b:g} s: validation shapes differ from the heuristic's", file=sys.stderr)
-                return 2
-    n = len(heur_val)
-    h = sum(heur_val.values()) / n
-    fracs = {b: [sum(d.values()) / n for d in per_seed] for b, per_seed in val.items()}
-    print(f"validation ({n} shapes): merge heuristic {sum(heur_val.values())}/{n} = {h:.3f}")
-    print("| budget s | " + " | ".join(f"seed {s}" for s in seeds) + " | mean |")
-    print("|---|" + "---|" * (len(seeds) + 1))
-    for b, f in fracs.items():
-        print(f"| {b:g} | " + " | ".join(f"{x:.3f}" for x in f) + f" | {sum(f) / len(f):.3f} |")
-    b, reached = choose(fracs, h)
-    print(f"chosen budget: {b:g} s ({'reaches' if reached else 'does not reach'} the heuristic on validation)")
-    try:
-        held = [all_rows(os.path.join(a.runs, f"lam1000_seed{s}", f"heldout_refine{b:g}.jsonl")) for s in seeds]
-    except OSError as e:
-        print(f"error: {e.filename}: {e.strerror}", file=sys.stderr)
-        return 2
-    hh = _stable(held[0], "heuristic")
-    g = [sum(_stable(r, "generator_refined").values()) / len(hh) for r in held]
-    hf = sum(hh.values()) / len(hh)
-    print(f"held-out ({len(hh)} shapes) at {b:g} s: generator + refinement "
-          + ", ".join(f"{x:.3f}" for x in g) + f" (mean {sum(g) / len(g):.3f}); merge heuristic {hf:.3f}: "
-          + ("target met" if sum(g) / len(g) >= hf else "target not met"))
     return 0
 
 
