@@ -1,7 +1,7 @@
 """Issue 19, item 3: the refinement budget and the lambda chosen on validation, and the held-out result at them.
 
     python benchmarks/refine_validation.py [--runs benchmarks/results/train_full_s56] [--budgets 60,120]
-        [--lams 1000,0] [--seeds 0,1,2]
+        [--lams 1000,0] [--seeds 0,1,2] [--replicates RUNS/val/replicate]
 
 Applies two rules, each committed before its runs:
 
@@ -21,10 +21,13 @@ Reads
   ``benchmarks/refine_budget.py --split val`` for a longer budget),
 - ``RUNS/val/val_heuristic.jsonl`` (``stablelego evaluate --split val
   --heuristic``),
-- ``RUNS/lam{L}_seed{K}/heldout_refine{B}.jsonl`` and the heuristic rows in
-  them (the held-out figures, read only after the choices),
+- ``RUNS/lam{L}_seed{K}/heldout_refine{B}.jsonl``, and the heuristic rows of
+  the first lambda's first seed (the held-out figures, read only after the
+  choices),
 
-and prints one table per choice and the held-out result at each. Exit 2
+and prints one table per choice and the held-out result at each; with
+``--replicates DIR``, each rerun there (a validation file's name) against its
+original, shape by shape. Exit 2
 when a file is missing or malformed, or the validation rows of a run are
 not the heuristic's shapes.
 """
@@ -102,14 +105,30 @@ def _table(label: str, fracs: dict[float, list[float]], seeds: list[int], unit: 
         print(f"| {k:g}{unit} | " + " | ".join(f"{x:.3f}" for x in f) + f" | {sum(f) / len(f):.3f} |")
 
 
-def _heldout(runs, lam, seeds, budget) -> str:
-    held = [_read(os.path.join(runs, f"lam{lam:g}_seed{s}", f"heldout_refine{budget:g}.jsonl")) for s in seeds]
-    hh = _stable(held[0], "heuristic")
-    g = [sum(_stable(r, "generator_refined").values()) / len(hh) for r in held]
+def _heldout(runs, lam, seeds, budget, hh: dict[str, bool]) -> str:
+    """The held-out line at (lambda, budget); ``hh``: the heuristic's held-out verdicts."""
+    g = []
+    for s in seeds:
+        path = os.path.join(runs, f"lam{lam:g}_seed{s}", f"heldout_refine{budget:g}.jsonl")
+        d = _stable(_read(path), "generator_refined")
+        if set(d) != set(hh):
+            raise Missing(f"{path}: held-out shapes differ from the heuristic's")
+        g.append(sum(d.values()) / len(hh))
     hf = sum(hh.values()) / len(hh)
     return (f"held-out ({len(hh)} shapes), lambda {lam:g} at {budget:g} s: generator + refinement "
             + ", ".join(f"{x:.3f}" for x in g) + f" (mean {sum(g) / len(g):.3f}); merge heuristic {hf:.3f}: "
             + ("target met" if sum(g) / len(g) >= hf else "target not met"))
+
+
+def _replicate(original: str, again: str) -> str:
+    """One line: a rerun's generator_refined stable count against its original's, and the shapes that differ."""
+    d0 = _stable(_read(original), "generator_refined")
+    d1 = _stable(_read(again), "generator_refined")
+    if set(d0) != set(d1):
+        raise Missing(f"{again}: shapes differ from {original}'s")
+    diff = sorted(s for s in d0 if d0[s] != d1[s])
+    return (f"rerun of {os.path.basename(original)}: {sum(d1.values())}/{len(d1)} against {sum(d0.values())}/{len(d0)}; "
+            + (", ".join(f"{s} ({'stands' if d1[s] else 'falls'} in the rerun)" for s in diff) if diff else "the same verdicts"))
 
 
 def main(argv=None) -> int:
@@ -118,6 +137,8 @@ def main(argv=None) -> int:
     ap.add_argument("--budgets", default="60,120")
     ap.add_argument("--lams", default="1000,0", help="the first: the lambda chosen without refinement")
     ap.add_argument("--seeds", default="0,1,2")
+    ap.add_argument("--replicates", default=None,
+                    help="a folder of reruns of validation files (same names): each compared with its original")
     a = ap.parse_args(argv)
     budgets = [float(b) for b in a.budgets.split(",")]
     lams = [float(x) for x in a.lams.split(",")]
@@ -132,7 +153,11 @@ def main(argv=None) -> int:
         _table("budget", fracs, seeds, " s")
         b, reached = choose(fracs, h)
         print(f"chosen budget: {b:g} s ({'reaches' if reached else 'does not reach'} the heuristic on validation)")
-        print(_heldout(a.runs, lams[0], seeds, b))
+        first = os.path.join(a.runs, f"lam{lams[0]:g}_seed{seeds[0]}", f"heldout_refine{b:g}.jsonl")
+        hh = _stable(_read(first), "heuristic")  # the heuristic's rows ride with the first lambda's
+        if not hh:
+            raise Missing(f"{first}: no heuristic rows")
+        print(_heldout(a.runs, lams[0], seeds, b, hh))
         if len(lams) > 1:
             by_lam = {lam: (fracs[b] if lam == lams[0] else _fractions(a.runs, lam, seeds, b, heur_val))
                       for lam in lams}
@@ -141,7 +166,11 @@ def main(argv=None) -> int:
             lam = choose_lambda(by_lam)
             m = sum(by_lam[lam]) / len(seeds)
             print(f"chosen lambda: {lam:g} ({'reaches' if m >= h else 'does not reach'} the heuristic on validation)")
-            print(_heldout(a.runs, lam, seeds, b))
+            print(_heldout(a.runs, lam, seeds, b, hh))
+        if a.replicates:
+            for name in sorted(os.listdir(a.replicates)):
+                if name.endswith(".jsonl"):
+                    print(_replicate(os.path.join(a.runs, "val", name), os.path.join(a.replicates, name)))
     except Missing as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
