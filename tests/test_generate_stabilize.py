@@ -57,6 +57,27 @@ def test_a_refinement_follows_one_path_whatever_its_budget():
     assert a.exact_calls > 2 and np.array_equal(a.layout.pos, b.layout.pos) and np.array_equal(a.layout.size, b.layout.size)
 
 
+def test_a_budget_in_exact_solves_stops_the_same_path_at_the_same_point():
+    # max_solves: the one path cut after N exact solves, with no clock in it
+    vox = random_voxel_shape(0, grid=8, kind="boxes")
+    ones = _unit_cover(vox)
+    free = stabilize(vox, StabilizeOptions(seeds=1, gradient=False, rounds=12), start=ones)
+    k = free.exact_calls
+    assert free.stable and k >= 8
+    same = stabilize(vox, StabilizeOptions(seeds=1, gradient=False, rounds=12, time_s=float("inf"), max_solves=k),
+                     start=ones)
+    assert (same.stable, same.exact_calls, same.rounds, same.method) == (True, k, free.rounds, free.method)
+    assert np.array_equal(same.layout.pos, free.layout.pos) and np.array_equal(same.layout.size, free.layout.size)
+    cut = [stabilize(vox, StabilizeOptions(seeds=1, gradient=False, rounds=12, time_s=float("inf"), max_solves=n),
+                     start=ones) for n in (k // 2, k // 2)]
+    # stopped before standing, at most a confirmation and the answer's canonical solve past N, twice alike
+    assert not cut[0].stable and k // 2 <= cut[0].exact_calls <= k // 2 + 2 and cut[0].failing > 0
+    assert (cut[0].exact_calls, cut[0].rounds, cut[0].failing) == (cut[1].exact_calls, cut[1].rounds, cut[1].failing)
+    assert np.array_equal(cut[0].layout.pos, cut[1].layout.pos)
+    with pytest.raises(ValueError, match="max_solves must be >= 1"):
+        StabilizeOptions(max_solves=0)
+
+
 def test_a_given_start_cover_is_refined_and_a_wrong_one_refused():
     # the cover of 1x1 bricks falls apart (no knob holds a 1x1 to another side by
     # side); refined from it, the re-merge rounds reach a cover that stands
@@ -316,3 +337,18 @@ def test_cli_time_must_be_positive_seconds(tmp_path, capsys, value):
         main(["stabilize", str(src), "--out", str(tmp_path / "o.json"), "--time", value])
     assert exc.value.code == 2 and value in capsys.readouterr().err
     assert not (tmp_path / "o.json").exists()
+
+
+def test_cli_max_solves_stops_the_search(tmp_path, capsys):
+    vox = _blob()  # its merge falls: one solve of it, then the budget is spent
+    src = tmp_path / "vox.npy"
+    np.save(src, vox)
+    out = tmp_path / "o.json"
+    code = main(["stabilize", str(src), "--out", str(out), "--seeds", "1", "--no-gradient", "--json", "--quiet",
+                 "--max-solves", "1"])
+    rec = json.loads(capsys.readouterr().out)
+    assert code == 1 and not rec["stable"] and rec["exact_calls"] == 1 and rec["rounds"] == 0
+    assert not out.exists()
+    with pytest.raises(SystemExit) as exc:
+        main(["stabilize", str(src), "--out", str(out), "--max-solves", "0"])
+    assert exc.value.code == 2 and not out.exists()

@@ -368,6 +368,32 @@ def test_evaluate_scores_each_decoding_and_refines_the_filled_one(tmp_path, caps
     assert exc.value.code == 2 and not (tmp_path / "x.jsonl").exists()
 
 
+def test_refinement_in_exact_solves_gives_the_same_rows_twice():
+    """``evaluate --refine-solves N``: each start refined within N exact
+    solves and no clock, so two runs give the same rows, marked with the
+    budget; a shape its merge already holds stands at once."""
+    import types
+
+    from stablelego_jax.generate.voxels import random_voxel_shape
+    from stablelego_jax.layout import brick_layout
+    from stablelego_jax.train.evaluate import refined_rows
+
+    shapes = [types.SimpleNamespace(name=f"boxes{k}", kind="boxes", vox=random_voxel_shape(k, grid=8, kind="boxes"))
+              for k in (0, 1)]
+    ones = [brick_layout(np.argwhere(s.vox), np.ones((int(s.vox.sum()), 2), int)) for s in shapes]
+    a, b = (refined_rows("generator_refined", shapes, ones, None, None, {"seed": 0}, solves=4) for _ in range(2))
+    def no_clock(rows):
+        return [{k: v for k, v in r.items() if k != "refine_s"} for r in rows]
+
+    assert no_clock(a) == no_clock(b)
+    assert all(r["budget_solves"] == 4 and r["seed"] == 0 and 1 <= r["exact_calls"] <= 6 for r in a)
+    # boxes 1 stands within 3 solves from its unit cover, boxes 0 needs more than 4
+    assert [r["stable"] for r in a] == [False, True]
+    with pytest.raises(SystemExit) as exc:
+        main(["evaluate", "--checkpoint", "x.npz", "--out", "x.jsonl", "--refine-solves", "0"])
+    assert exc.value.code == 2
+
+
 def test_bad_config_names_the_file(tmp_path, capsys):
     missing = str(tmp_path / "nope.json")
     assert main(["train", "--config", missing, "--out", str(tmp_path / "o")]) == 2

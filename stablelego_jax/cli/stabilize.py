@@ -30,6 +30,9 @@ def add_parser(sub) -> None:
     s.add_argument("--seeds", type=int_at_least(1), default=20, help="heuristic tie-break seeds tried first (default 20)")
     s.add_argument("--rounds", type=int_at_least(0), default=40, help="random re-merge rounds at most, then as many with the gradient move (default 40)")
     s.add_argument("--time", type=positive_seconds, default=600.0, metavar="S", help="time budget in seconds (default 600)")
+    s.add_argument("--max-solves", type=int_at_least(1), default=None, metavar="N",
+                   help="also stop after N exact solves (the search follows one path: with a --time it never "
+                        "reaches, the same answer on any machine)")
     s.add_argument("--reach", type=int_at_least(0), default=2,
                    help="studs around a failing brick whose bricks are re-merged (default 2)")
     s.add_argument("--no-gradient", action="store_true", help="random re-merges only (no gradient move)")
@@ -112,7 +115,7 @@ def cmd_stabilize(args) -> int:
         return 2
     opts = StabilizeOptions(seeds=args.seeds, rounds=args.rounds, time_s=args.time, reach=args.reach,
                             gradient=not args.no_gradient, allow_support=args.allow_support, bricks=bricks,
-                            judge=args.judge)
+                            judge=args.judge, max_solves=args.max_solves)
 
     def say(msg: str) -> None:
         if not args.quiet:

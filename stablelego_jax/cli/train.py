@@ -8,7 +8,7 @@ import os
 __all__ = ["add_parsers", "cmd_train", "cmd_evaluate"]
 
 from ..train import CONFIGS
-from .common import positive_seconds
+from .common import int_at_least, positive_seconds
 from ..train.shapes import SPLITS
 
 
@@ -47,6 +47,9 @@ def add_parsers(sub) -> None:
                    help="also refine each filled decoding with stablelego stabilize's re-merge rounds started from "
                         "it (exact solves, no heuristic seeds), at most SECONDS a shape: method generator_refined; with "
                         "--heuristic also the merge refined the same way (heuristic_refined)")
+    e.add_argument("--refine-solves", type=int_at_least(1), default=None, metavar="N",
+                   help="the refinement's budget in exact solves, alone (no time limit: the same rows on any "
+                        "machine) or with --refine (whichever is spent first)")
     e.add_argument("--split", choices=SPLITS, default="heldout")
     e.set_defaults(func=cmd_evaluate)
 
@@ -61,5 +64,6 @@ def cmd_train(args) -> int:
 def cmd_evaluate(args) -> int:
     from ..train.evaluate import run
 
-    return run(args.checkpoint, args.out, args.split, args.heuristic, args.untrained, args.refine)
+    return run(args.checkpoint, args.out, args.split, args.heuristic, args.untrained, args.refine,
+               args.refine_solves)
 

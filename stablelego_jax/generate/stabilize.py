@@ -79,6 +79,12 @@ class StabilizeOptions:
     seeds: heuristic tie-break seeds tried first; rounds: random re-merge
     rounds at most, then (``gradient``) as many again with the gradient move;
     time_s: wall-clock budget (s; checked between exact solves);
+    max_solves: a budget in exact solves (None: none), checked where the
+    clock is: the search stops before a candidate once it has made this
+    many (a candidate the judge says stands is confirmed by a second,
+    canonical solve, and the cover returned may get one). The search
+    follows one path whatever its budget, so with a ``time_s`` it never
+    reaches, the result is the same on any machine and under any load;
     reach: studs around a failing brick whose bricks are re-merged;
     random_moves: random covers tried per round; gradient: use the gradient
     move; steps / lr / lam: its Adam steps, step size and stability weight;
@@ -105,6 +111,7 @@ class StabilizeOptions:
     seeds: int = 20
     rounds: int = 40
     time_s: float = 600.0
+    max_solves: int | None = None
     reach: int = 2
     random_moves: int = 6
     gradient: bool = True
@@ -121,6 +128,8 @@ class StabilizeOptions:
     def __post_init__(self):
         if self.judge not in JUDGES:
             raise ValueError(f"judge must be one of {', '.join(JUDGES)}, not {self.judge!r}")
+        if self.max_solves is not None and self.max_solves < 1:
+            raise ValueError(f"max_solves must be >= 1 or None, got {self.max_solves}")
 
 
 @dataclasses.dataclass
@@ -436,6 +445,11 @@ def stabilize(vox: np.ndarray, opts: StabilizeOptions = StabilizeOptions(), sour
             a = make_analysis(layout, model, r.f, "exact", r.success, t, objective=r.objective)
         return check(layout, canonical=True) if a.stable else a
 
+    def spent() -> bool:
+        """Whether the budget is spent: the time, or the exact solves."""
+        return time.perf_counter() - t0 > opts.time_s or (
+            opts.max_solves is not None and calls["exact"] >= opts.max_solves)
+
     def final(layout: Layout, a: Analysis) -> Analysis:
         """The canonical analysis of the cover returned (``a`` when it is one already)."""
         return a if a.model.params == opts.params else check(layout, canonical=True)
@@ -487,12 +501,12 @@ def stabilize(vox: np.ndarray, opts: StabilizeOptions = StabilizeOptions(), sour
     # none when some cells cannot be grounded (no cover stands: the search is skipped)
     covers = []
     for seed in range(1, 1 if lost.any() else opts.seeds):
-        if time.perf_counter() - t0 > opts.time_s:
+        if spent():
             break
         lay = merge_voxels(vox, seed=seed, bricks=opts.bricks, source=source)
         covers.append((floating(lay), seed, lay))
     for n_fl, seed, lay in sorted(covers, key=lambda c: (c[0] > 0, c[1])):
-        if time.perf_counter() - t0 > opts.time_s:
+        if spent():
             break
         if beaten(n_fl, best_a):
             continue
@@ -512,7 +526,7 @@ def stabilize(vox: np.ndarray, opts: StabilizeOptions = StabilizeOptions(), sour
     # bricks of a seed is a poor guide to what a re-merge can fix); the
     # gradient rounds from the best cover found by then
     cur, cur_a = start, start_a
-    while rounds < max_rounds and time.perf_counter() - t0 < opts.time_s and not best_a.stable and not lost.any():
+    while rounds < max_rounds and not spent() and not best_a.stable and not lost.any():
         rounds += 1
         if rounds == opts.rounds + 1:
             cur, cur_a, stuck = best, best_a, 0
@@ -542,7 +556,7 @@ def stabilize(vox: np.ndarray, opts: StabilizeOptions = StabilizeOptions(), sour
         # (a soft solve per step) when they find nothing better, begun only
         # while a quarter of the budget remains (its compile cannot stop)
         for _ in range(opts.random_moves):
-            if time.perf_counter() - t0 > opts.time_s or best_a.stable:
+            if spent() or best_a.stable:
                 break
             improved |= attempt("random", _random_rank(base, region, pos, size, rng))
         if (rounds > opts.rounds and not improved and not best_a.stable and grad is not None

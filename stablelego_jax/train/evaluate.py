@@ -1,7 +1,7 @@
 """Score a trained generator on the held-out shapes with the exact solver.
 
     stablelego evaluate --checkpoint OUT/checkpoint.npz --out RESULTS.jsonl
-        [--heuristic] [--untrained] [--refine SECONDS] [--split heldout|val|train]
+        [--heuristic] [--untrained] [--refine SECONDS] [--refine-solves N] [--split heldout|val|train]
 
 Decodes two layouts per shape: "generator" (greedy, probabilities >= the
 config's ``threshold``, no overlaps, nothing forced in: cells can stay
@@ -19,7 +19,11 @@ added. ``--refine SECONDS`` adds "generator_refined": the filled decoding
 refined per shape by :func:`stablelego_jax.generate.stabilize.stabilize`
 started from it (its random re-merge rounds around the failing bricks, each
 cover judged by the exact solver; no heuristic seeds, no gradient move, at
-most SECONDS a shape): IoU 1, stands by the exact solver or not; with
+most SECONDS a shape; ``--refine-solves N``: at most N exact solves a
+shape, alone or with SECONDS, whichever is spent first; the search follows
+one path, so N alone gives the same rows on any machine and under any
+load, where a wall-clock budget lets a slower run stop earlier): IoU 1,
+stands by the exact solver or not; with
 ``--heuristic`` also "heuristic_refined", the same refinement started from
 the merge (the control: what the generator's start adds). The summary
 (stable fraction, mean IoU per method) goes to stdout, a line per shape
@@ -46,10 +50,12 @@ __all__ = ["evaluate", "refined_rows", "summary", "run"]
 
 @x64
 def evaluate(ckpt: str, split: str = "heldout", heuristic: bool = False, untrained: bool = False,
-             refine: float | None = None, log=None) -> list[dict]:
+             refine: float | None = None, log=None, refine_solves: int | None = None) -> list[dict]:
     """Rows (one per shape and method) for the checkpoint ``ckpt``
-    (``refine``: seconds of refinement per shape, see the module docstring;
-    ``log``: a stream for a line per shape refined)."""
+    (``refine``: seconds of refinement per shape, ``refine_solves``: exact
+    solves per shape, either or both; see the module docstring; ``log``: a
+    stream for a line per shape refined)."""
+    refining = refine is not None or refine_solves is not None
     params, _, step, _, cfg, _ = load_checkpoint(ckpt)
     shapes = split_shapes(cfg, split)
     arr = Arrays(shapes, cfg["crop"], cfg["grid"])
@@ -69,26 +75,31 @@ def evaluate(ckpt: str, split: str = "heldout", heuristic: bool = False, untrain
                 rows.append({"shape": s.name, "kind": s.kind, "method": method, "lam": cfg["lam"],
                              "seed": cfg["seed"], "step": st, "stable": stable, "iou": round(iou, 6),
                              "n_bricks": nb, "n_cells": int(s.vox.sum())})
-    if refine is not None:
+    if refining:
         rows += refined_rows("generator_refined", shapes, filled, refine, log,
-                         {"lam": cfg["lam"], "seed": cfg["seed"], "step": step})
+                             {"lam": cfg["lam"], "seed": cfg["seed"], "step": step}, refine_solves)
     if heuristic:
         merged = [merge_voxels(s.vox, source=s.name) for s in shapes]
         for s, lay in zip(shapes, merged):
             rows.append({"shape": s.name, "kind": s.kind, "method": "heuristic", "stable": score_layout(lay),
                          "iou": 1.0, "n_bricks": lay.n, "n_cells": int(s.vox.sum())})
-        if refine is not None:  # the control: the same refinement started from the merge
-            rows += refined_rows("heuristic_refined", shapes, merged, refine, log, {})
+        if refining:  # the control: the same refinement started from the merge
+            rows += refined_rows("heuristic_refined", shapes, merged, refine, log, {}, refine_solves)
     return rows
 
 
-def refined_rows(method, shapes, starts, seconds, log=None, extra=None) -> list[dict]:
+def refined_rows(method, shapes, starts, seconds, log=None, extra=None, solves: int | None = None) -> list[dict]:
     """Rows ``method``: each start cover (a Layout or None) of ``shapes``
     refined by stabilize (no heuristic seeds, no gradient move, at most
-    ``seconds`` a shape); ``extra``: fields added to every row."""
+    ``seconds`` (None: no limit) and ``solves`` exact solves (None: no
+    limit) a shape); ``extra``: fields added to every row, and
+    ``budget_solves`` when ``solves`` is given."""
     from ..generate.stabilize import StabilizeOptions, stabilize
 
-    opts = StabilizeOptions(seeds=1, gradient=False, time_s=float(seconds))
+    opts = StabilizeOptions(seeds=1, gradient=False, time_s=float("inf") if seconds is None else float(seconds),
+                            max_solves=solves)
+    if solves is not None:
+        extra = {**(extra or {}), "budget_solves": int(solves)}
     rows = []
     for i, (s, lay) in enumerate(zip(shapes, starts)):
         row = {"shape": s.name, "kind": s.kind, "method": method, **(extra or {}), "n_cells": int(s.vox.sum())}
@@ -120,7 +131,7 @@ def summary(rows: list[dict]) -> dict:
 
 
 def run(checkpoint: str, out: str, split: str = "heldout", heuristic: bool = False, untrained: bool = False,
-        refine: float | None = None) -> int:
+        refine: float | None = None, refine_solves: int | None = None) -> int:
     """``stablelego evaluate``: score a checkpoint's decoded layouts with the
     exact solver, write the rows to ``out``; exit status (2: missing or bad
     checkpoint, nothing written)."""
@@ -129,7 +140,7 @@ def run(checkpoint: str, out: str, split: str = "heldout", heuristic: bool = Fal
         return 2
     t0 = time.perf_counter()
     try:
-        rows = evaluate(checkpoint, split, heuristic, untrained, refine, log=sys.stderr)
+        rows = evaluate(checkpoint, split, heuristic, untrained, refine, log=sys.stderr, refine_solves=refine_solves)
     except (OSError, ValueError, KeyError) as exc:
         print(f"error: {checkpoint}: cannot evaluate: {exc}", file=sys.stderr)
         return 2
