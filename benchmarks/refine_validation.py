@@ -1,7 +1,7 @@
 """Issue 19, item 3: the refinement budget and the lambda chosen on validation, and the held-out result at them.
 
     python benchmarks/refine_validation.py [--runs benchmarks/results/train_full_s56] [--budgets 60,120]
-        [--lams 1000,0] [--seeds 0,1,2] [--replicates RUNS/val/replicate]
+        [--lams 1000,0] [--seeds 0,1,2] [--replicates RUNS/val/replicate [RUNS/val/replicate2 ...]]
 
 Applies two rules, each committed before its runs:
 
@@ -26,8 +26,10 @@ Reads
   choices),
 
 and prints one table per choice and the held-out result at each; with
-``--replicates DIR``, each rerun there (a validation file's name) against its
-original, shape by shape. Exit 2
+``--replicates DIR ...``, each rerun there (a validation file's name) against
+its original, shape by shape, and per lambda and seed every run's stable
+fraction at B and the mean over the seeds of their means over the runs (the
+rules read the first runs only). Exit 2
 when a file is missing or malformed, or the validation rows of a run are
 not the heuristic's shapes.
 """
@@ -131,13 +133,38 @@ def _replicate(original: str, again: str) -> str:
             + (", ".join(f"{s} ({'stands' if d1[s] else 'falls'} in the rerun)" for s in diff) if diff else "the same verdicts"))
 
 
+def _runs_table(runs, folders, lams, seeds, budget, heur_val) -> None:
+    """Per lambda and seed, the stable fraction of the first run and of each
+    rerun found in ``folders``, and the mean over the seeds of each seed's
+    mean over its runs."""
+    print(f"every run at {budget:g} s (first run, then reruns; the rules read the first):")
+    print("| lambda | " + " | ".join(f"seed {s}" for s in seeds) + " | mean of the seeds' run means |")
+    print("|---|" + "---|" * (len(seeds) + 1))
+    for lam in lams:
+        cells, means, n = [], [], 0
+        for s in seeds:
+            first = val_path(runs, lam, s, budget)
+            paths = [first] + [os.path.join(f, os.path.basename(first)) for f in folders
+                               if os.path.isfile(os.path.join(f, os.path.basename(first)))]
+            fr = []
+            for p in paths:
+                d = _stable(_read(p), "generator_refined")
+                if set(d) != set(heur_val):
+                    raise Missing(f"{p}: validation shapes differ from the heuristic's")
+                fr.append(sum(d.values()) / len(heur_val))
+            cells.append(" / ".join(f"{x:.3f}" for x in fr))
+            means.append(sum(fr) / len(fr))
+            n += len(fr)
+        print(f"| {lam:g} | " + " | ".join(cells) + f" | {sum(means) / len(means):.3f} ({n} runs) |")
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--runs", default=os.path.join(HERE, "results", "train_full_s56"))
     ap.add_argument("--budgets", default="60,120")
     ap.add_argument("--lams", default="1000,0", help="the first: the lambda chosen without refinement")
     ap.add_argument("--seeds", default="0,1,2")
-    ap.add_argument("--replicates", default=None,
+    ap.add_argument("--replicates", nargs="+", default=[],
                     help="a folder of reruns of validation files (same names): each compared with its original")
     a = ap.parse_args(argv)
     budgets = [float(b) for b in a.budgets.split(",")]
@@ -167,10 +194,12 @@ def main(argv=None) -> int:
             m = sum(by_lam[lam]) / len(seeds)
             print(f"chosen lambda: {lam:g} ({'reaches' if m >= h else 'does not reach'} the heuristic on validation)")
             print(_heldout(a.runs, lam, seeds, b, hh))
-        if a.replicates:
-            for name in sorted(os.listdir(a.replicates)):
+        for folder in a.replicates:
+            for name in sorted(os.listdir(folder)):
                 if name.endswith(".jsonl"):
-                    print(_replicate(os.path.join(a.runs, "val", name), os.path.join(a.replicates, name)))
+                    print(_replicate(os.path.join(a.runs, "val", name), os.path.join(folder, name)))
+        if a.replicates:
+            _runs_table(a.runs, a.replicates, lams, seeds, b, heur_val)
     except Missing as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
