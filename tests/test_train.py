@@ -371,7 +371,7 @@ def test_evaluate_scores_each_decoding_and_refines_the_filled_one(tmp_path, caps
 def test_refinement_in_exact_solves_gives_the_same_rows_twice():
     """``evaluate --refine-solves N``: each start refined within N exact
     solves and no clock, so two runs give the same rows, marked with the
-    budget; a shape its merge already holds stands at once."""
+    budget: a start that needs more solves falls, one that needs fewer stands."""
     import types
 
     from stablelego_jax.generate.voxels import random_voxel_shape
@@ -382,6 +382,7 @@ def test_refinement_in_exact_solves_gives_the_same_rows_twice():
               for k in (0, 1)]
     ones = [brick_layout(np.argwhere(s.vox), np.ones((int(s.vox.sum()), 2), int)) for s in shapes]
     a, b = (refined_rows("generator_refined", shapes, ones, None, None, {"seed": 0}, solves=4) for _ in range(2))
+
     def no_clock(rows):
         return [{k: v for k, v in r.items() if k != "refine_s"} for r in rows]
 
