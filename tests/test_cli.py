@@ -362,3 +362,22 @@ def test_a_removed_solver_is_a_usage_error_saying_what_replaces_it(capsys):
         err = capsys.readouterr().err
         assert "removed in version 0.3" in err and "use jax" in err
     assert not os.path.exists("never-written.jsonl")
+
+
+def test_help_and_usage_errors_import_no_jax():
+    """``stablelego --help``, a command's ``--help`` and a usage error end
+    before anything imports JAX (the package's promise: help stays fast)."""
+    import subprocess
+    import sys
+
+    code = ("import sys\n"
+            "from stablelego_jax.cli import main\n"
+            "for argv in (['--help'], ['analyze', '--help'], ['score', '--no-such-option']):\n"
+            "    try:\n"
+            "        main(argv)\n"
+            "    except SystemExit:\n"
+            "        pass\n"
+            "print('jax' in sys.modules)\n")
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                       cwd=os.path.join(os.path.dirname(__file__), ".."))
+    assert r.returncode == 0 and r.stdout.strip().splitlines()[-1] == "False", r.stderr[-2000:]

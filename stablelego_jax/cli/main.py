@@ -45,12 +45,14 @@ def main(argv=None) -> int:
     command ends the process without tearing JAX down
     (:func:`~stablelego_jax.runtime.quick_exit`);
     called with an ``argv`` list (from Python), it returns 130."""
+    # parsed first: --help and usage errors end here, before anything imports JAX
+    args = build_parser().parse_args(argv)
+
     from ..blas import inline_cpu_dispatch
     from ..progress import end_bars
     from ..runtime import quick_exit
     from .interrupt import end_process, prompt_interrupt
 
-    args = build_parser().parse_args(argv)
     args.own_process = argv is None  # the program itself: JAX's backend has not started
     # before JAX's backend starts (a no-op once it has, e.g. in tests):
     # computations run inline on the calling thread (see stablelego_jax.blas)
