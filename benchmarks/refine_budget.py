@@ -32,7 +32,7 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 REPO = os.path.dirname(HERE)
 sys.path.insert(0, REPO)
 sys.path.insert(0, HERE)
-from rows import all_rows  # noqa: E402
+from rows import RowsError, all_rows  # noqa: E402
 
 
 def main(argv=None) -> int:
@@ -56,11 +56,8 @@ def main(argv=None) -> int:
 
     try:
         rows = all_rows(a.rows)
-    except OSError as e:
-        print(f"error: {a.rows}: {e.strerror}", file=sys.stderr)
-        return 2
-    except ValueError as e:
-        print(f"error: {a.rows}: not JSON lines ({e})", file=sys.stderr)
+    except RowsError as e:
+        print(f"error: {e}", file=sys.stderr)
         return 2
     methods = [m for m in a.methods.split(",") if any(r["method"] == m for r in rows)]
     if not methods:

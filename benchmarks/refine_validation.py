@@ -41,11 +41,7 @@ import sys
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, HERE)
-from rows import all_rows  # noqa: E402
-
-
-class Missing(Exception):
-    """A results file that cannot be read: its one-line reason."""
+from rows import RowsError, all_rows  # noqa: E402
 
 
 def _stable(rows: list[dict], method: str) -> dict[str, bool]:
@@ -53,13 +49,13 @@ def _stable(rows: list[dict], method: str) -> dict[str, bool]:
     return {r["shape"]: bool(r["stable"]) for r in rows if r["method"] == method}
 
 
-def _read(path: str) -> list[dict]:
-    try:
-        return all_rows(path)
-    except OSError as e:
-        raise Missing(f"{path}: {e.strerror}") from None
-    except ValueError as e:
-        raise Missing(f"{path}: not JSON lines ({e})") from None
+def _fraction(path: str, ref: dict[str, bool]) -> float:
+    """generator_refined's stable fraction in the rows of ``path``, whose
+    shapes must be ``ref``'s (RowsError otherwise)."""
+    d = _stable(all_rows(path), "generator_refined")
+    if set(d) != set(ref):
+        raise RowsError(f"{path}: shapes differ from the heuristic's")
+    return sum(d.values()) / len(ref)
 
 
 def val_path(runs: str, lam: float, seed: int, budget: float) -> str:
@@ -90,14 +86,7 @@ def choose_lambda(val: dict[float, list[float]]) -> float:
 
 def _fractions(runs, lam, seeds, budget, heur_val) -> list[float]:
     """The seeds' generator_refined stable fractions on validation."""
-    out = []
-    for s in seeds:
-        path = val_path(runs, lam, s, budget)
-        d = _stable(_read(path), "generator_refined")
-        if set(d) != set(heur_val):
-            raise Missing(f"{path}: validation shapes differ from the heuristic's")
-        out.append(sum(d.values()) / len(heur_val))
-    return out
+    return [_fraction(val_path(runs, lam, s, budget), heur_val) for s in seeds]
 
 
 def _table(label: str, fracs: dict[float, list[float]], seeds: list[int], unit: str) -> None:
@@ -109,13 +98,7 @@ def _table(label: str, fracs: dict[float, list[float]], seeds: list[int], unit: 
 
 def _heldout(runs, lam, seeds, budget, hh: dict[str, bool]) -> str:
     """The held-out line at (lambda, budget); ``hh``: the heuristic's held-out verdicts."""
-    g = []
-    for s in seeds:
-        path = os.path.join(runs, f"lam{lam:g}_seed{s}", f"heldout_refine{budget:g}.jsonl")
-        d = _stable(_read(path), "generator_refined")
-        if set(d) != set(hh):
-            raise Missing(f"{path}: held-out shapes differ from the heuristic's")
-        g.append(sum(d.values()) / len(hh))
+    g = [_fraction(os.path.join(runs, f"lam{lam:g}_seed{s}", f"heldout_refine{budget:g}.jsonl"), hh) for s in seeds]
     hf = sum(hh.values()) / len(hh)
     return (f"held-out ({len(hh)} shapes), lambda {lam:g} at {budget:g} s: generator + refinement "
             + ", ".join(f"{x:.3f}" for x in g) + f" (mean {sum(g) / len(g):.3f}); merge heuristic {hf:.3f}: "
@@ -124,10 +107,10 @@ def _heldout(runs, lam, seeds, budget, hh: dict[str, bool]) -> str:
 
 def _replicate(original: str, again: str) -> str:
     """One line: a rerun's generator_refined stable count against its original's, and the shapes that differ."""
-    d0 = _stable(_read(original), "generator_refined")
-    d1 = _stable(_read(again), "generator_refined")
+    d0 = _stable(all_rows(original), "generator_refined")
+    d1 = _stable(all_rows(again), "generator_refined")
     if set(d0) != set(d1):
-        raise Missing(f"{again}: shapes differ from {original}'s")
+        raise RowsError(f"{again}: shapes differ from {original}'s")
     diff = sorted(s for s in d0 if d0[s] != d1[s])
     return (f"rerun of {os.path.basename(original)}: {sum(d1.values())}/{len(d1)} against {sum(d0.values())}/{len(d0)}; "
             + (", ".join(f"{s} ({'stands' if d1[s] else 'falls'} in the rerun)" for s in diff) if diff else "the same verdicts"))
@@ -146,12 +129,7 @@ def _runs_table(runs, folders, lams, seeds, budget, heur_val) -> None:
             first = val_path(runs, lam, s, budget)
             paths = [first] + [os.path.join(f, os.path.basename(first)) for f in folders
                                if os.path.isfile(os.path.join(f, os.path.basename(first)))]
-            fr = []
-            for p in paths:
-                d = _stable(_read(p), "generator_refined")
-                if set(d) != set(heur_val):
-                    raise Missing(f"{p}: validation shapes differ from the heuristic's")
-                fr.append(sum(d.values()) / len(heur_val))
+            fr = [_fraction(p, heur_val) for p in paths]
             cells.append(" / ".join(f"{x:.3f}" for x in fr))
             means.append(sum(fr) / len(fr))
             n += len(fr)
@@ -171,7 +149,7 @@ def main(argv=None) -> int:
     lams = [float(x) for x in a.lams.split(",")]
     seeds = [int(s) for s in a.seeds.split(",")]
     try:
-        heur_val = _stable(_read(os.path.join(a.runs, "val", "val_heuristic.jsonl")), "heuristic")
+        heur_val = _stable(all_rows(os.path.join(a.runs, "val", "val_heuristic.jsonl")), "heuristic")
         n = len(heur_val)
         h = sum(heur_val.values()) / n
         print(f"validation ({n} shapes): merge heuristic {sum(heur_val.values())}/{n} = {h:.3f}")
@@ -181,9 +159,9 @@ def main(argv=None) -> int:
         b, reached = choose(fracs, h)
         print(f"chosen budget: {b:g} s ({'reaches' if reached else 'does not reach'} the heuristic on validation)")
         first = os.path.join(a.runs, f"lam{lams[0]:g}_seed{seeds[0]}", f"heldout_refine{b:g}.jsonl")
-        hh = _stable(_read(first), "heuristic")  # the heuristic's rows ride with the first lambda's
+        hh = _stable(all_rows(first), "heuristic")  # the heuristic's rows ride with the first lambda's
         if not hh:
-            raise Missing(f"{first}: no heuristic rows")
+            raise RowsError(f"{first}: no heuristic rows")
         print(_heldout(a.runs, lams[0], seeds, b, hh))
         if len(lams) > 1:
             by_lam = {lam: (fracs[b] if lam == lams[0] else _fractions(a.runs, lam, seeds, b, heur_val))
@@ -200,7 +178,7 @@ def main(argv=None) -> int:
                     print(_replicate(os.path.join(a.runs, "val", name), os.path.join(folder, name)))
         if a.replicates:
             _runs_table(a.runs, a.replicates, lams, seeds, b, heur_val)
-    except Missing as e:
+    except RowsError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
     return 0

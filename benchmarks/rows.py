@@ -22,11 +22,21 @@ def read_rows(path: str, key: str) -> dict:
     return out
 
 
+class RowsError(Exception):
+    """A finished results file that cannot be used; its text is one line
+    naming the file and why."""
+
+
 def all_rows(path: str) -> list[dict]:
     """Every row of a finished JSON-lines file (blank lines skipped), in
-    order; a missing or malformed file raises (OSError, ValueError)."""
-    with open(path) as fh:
-        return [json.loads(line) for line in fh if line.strip()]
+    order; a missing or malformed file raises :class:`RowsError`."""
+    try:
+        with open(path) as fh:
+            return [json.loads(line) for line in fh if line.strip()]
+    except OSError as e:
+        raise RowsError(f"{path}: {e.strerror}") from None
+    except ValueError as e:
+        raise RowsError(f"{path}: not JSON lines ({e})") from None
 
 
 def append_row(path: str, row: dict) -> None:
