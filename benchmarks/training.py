@@ -40,7 +40,7 @@ from stablelego_jax.batch import cpu_cores  # noqa: E402
 from stablelego_jax.files import atomic_write, atomic_write_text  # noqa: E402
 
 sys.path.insert(0, HERE)
-from rows import all_rows  # noqa: E402
+from rows import RowsError, all_rows  # noqa: E402
 
 
 #: decoding name -> evaluate's method name (see stablelego_jax.train.evaluate)
@@ -141,8 +141,13 @@ def main(argv=None) -> int:
                 "mean_iou": float(np.mean([r["iou"] for r in rs])),
                 "mean_bricks": float(np.mean([r["n_bricks"] for r in rs]))}
 
+    try:  # every evaluation read before anything is summarised
+        evaluations = {key: all_rows(os.path.join(d, a.heldout)) for key, d in runs.items()}
+    except RowsError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
     for (lam, s), d in runs.items():
-        rows = all_rows(os.path.join(d, a.heldout))
+        rows = evaluations[lam, s]
         h = [r for r in rows if r["method"] == "heuristic"]
         if h:
             heur = stats(h)
