@@ -2,8 +2,9 @@
 
     python benchmarks/refine_validation.py [--runs benchmarks/results/train_full_s56] [--budgets 60,120]
         [--lams 1000,0] [--seeds 0,1,2] [--replicates RUNS/val/replicate [RUNS/val/replicate2 ...]]
+        [--solves N]
 
-Applies two rules, each committed before its runs:
+Applies two rules (three with ``--solves``), each committed before its runs:
 
 1. ``RUNS/val/PROTOCOL.md``: for the first lambda of ``--lams`` (the one
    chosen without refinement), B = the smallest budget at which the mean
@@ -12,6 +13,13 @@ Applies two rules, each committed before its runs:
    budget with the higher mean (the larger on a tie).
 2. ``RUNS/val/PROTOCOL_LAMBDA.md``: at B, L = the lambda of ``--lams`` with
    the higher validation mean; the first one on a tie.
+3. ``RUNS/val/PROTOCOL_SOLVES.md`` (``--solves N``): the same choice of
+   lambda with a budget of N exact solves a shape and no clock, from
+   ``RUNS/val/solves{N}/lam{L}_seed{K}_val.jsonl``
+   (``benchmarks/refine_budget.py --solves N`` on the 60 s validation
+   rows); the held-out result at the chosen lambda from
+   ``RUNS/lam{L}_seed{K}/heldout_solves{N}.jsonl``, and the other lambda's
+   where those files exist (for the record).
 
 Reads
 
@@ -96,11 +104,14 @@ def _table(label: str, fracs: dict[float, list[float]], seeds: list[int], unit: 
         print(f"| {k:g}{unit} | " + " | ".join(f"{x:.3f}" for x in f) + f" | {sum(f) / len(f):.3f} |")
 
 
-def _heldout(runs, lam, seeds, budget, hh: dict[str, bool]) -> str:
-    """The held-out line at (lambda, budget); ``hh``: the heuristic's held-out verdicts."""
-    g = [_fraction(os.path.join(runs, f"lam{lam:g}_seed{s}", f"heldout_refine{budget:g}.jsonl"), hh) for s in seeds]
+def _heldout(runs, lam, seeds, budget, hh: dict[str, bool], name: str = "", unit: str = " s") -> str:
+    """The held-out line at (lambda, budget); ``hh``: the heuristic's
+    held-out verdicts; ``name``: each run's file (default
+    heldout_refine{budget}.jsonl)."""
+    name = name or f"heldout_refine{budget:g}.jsonl"
+    g = [_fraction(os.path.join(runs, f"lam{lam:g}_seed{s}", name), hh) for s in seeds]
     hf = sum(hh.values()) / len(hh)
-    return (f"held-out ({len(hh)} shapes), lambda {lam:g} at {budget:g} s: generator + refinement "
+    return (f"held-out ({len(hh)} shapes), lambda {lam:g} at {budget:g}{unit}: generator + refinement "
             + ", ".join(f"{x:.3f}" for x in g) + f" (mean {sum(g) / len(g):.3f}); merge heuristic {hf:.3f}: "
             + ("target met" if sum(g) / len(g) >= hf else "target not met"))
 
@@ -136,6 +147,24 @@ def _runs_table(runs, folders, lams, seeds, budget, heur_val) -> None:
         print(f"| {lam:g} | " + " | ".join(cells) + f" | {sum(means) / len(means):.3f} ({n} runs) |")
 
 
+def _solves_rule(runs, lams, seeds, n: int, heur_val: dict[str, bool], hh: dict[str, bool]) -> None:
+    """Rule 3: lambda chosen on validation with ``n`` exact solves a shape,
+    and the held-out result at it (then the other lambdas' where run)."""
+    by_lam = {lam: [_fraction(os.path.join(runs, "val", f"solves{n}", f"lam{lam:g}_seed{s}_val.jsonl"), heur_val)
+                    for s in seeds] for lam in lams}
+    print(f"rule 3, the lambda with {n} exact solves a shape (no clock):")
+    _table("lambda", by_lam, seeds, "")
+    lam = choose_lambda(by_lam)
+    h = sum(heur_val.values()) / len(heur_val)
+    m = sum(by_lam[lam]) / len(seeds)
+    print(f"chosen lambda: {lam:g} ({'reaches' if m >= h else 'does not reach'} the heuristic on validation)")
+    name = f"heldout_solves{n}.jsonl"
+    print(_heldout(runs, lam, seeds, n, hh, name, " exact solves"))
+    for other in lams:
+        if other != lam and all(os.path.isfile(os.path.join(runs, f"lam{other:g}_seed{s}", name)) for s in seeds):
+            print("for the record, not chosen: " + _heldout(runs, other, seeds, n, hh, name, " exact solves"))
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--runs", default=os.path.join(HERE, "results", "train_full_s56"))
@@ -144,6 +173,8 @@ def main(argv=None) -> int:
     ap.add_argument("--seeds", default="0,1,2")
     ap.add_argument("--replicates", nargs="+", default=[],
                     help="a folder of reruns of validation files (same names): each compared with its original")
+    ap.add_argument("--solves", type=int, default=None, metavar="N",
+                    help="also rule 3: lambda chosen with N exact solves a shape (RUNS/val/solves{N}/)")
     a = ap.parse_args(argv)
     budgets = [float(b) for b in a.budgets.split(",")]
     lams = [float(x) for x in a.lams.split(",")]
@@ -178,6 +209,8 @@ def main(argv=None) -> int:
                     print(_replicate(os.path.join(a.runs, "val", name), os.path.join(folder, name)))
         if a.replicates:
             _runs_table(a.runs, a.replicates, lams, seeds, b, heur_val)
+        if a.solves is not None:
+            _solves_rule(a.runs, lams, seeds, a.solves, heur_val, hh)
     except RowsError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
