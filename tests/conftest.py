@@ -85,6 +85,19 @@ def x64():
         yield
 
 
+def raises_layout_error(fn, *must_contain):
+    """The LayoutError ``fn()`` raises, after checking that its message holds
+    each of ``must_contain``."""
+    from stablelego_jax.layout import LayoutError
+
+    with pytest.raises(LayoutError) as ei:
+        fn()
+    msg = str(ei.value)
+    for s in must_contain:
+        assert s in msg, f"{s!r} not in {msg!r}"
+    return ei.value
+
+
 def hanging_scene(groups: int) -> dict:
     """A scene (JSON dict) of ``groups`` copies of: a two-brick column, an
     arm on it rotated 45 degrees, and a 1x1 hanging from the arm's far end

@@ -13,9 +13,9 @@ from stablelego_jax.files import atomic_write_text
 from stablelego_jax.formats import reader
 from stablelego_jax.formats.reader import load_layout, write_layout
 from stablelego_jax.formats.stablelego import layout_to_json_dict, layout_to_text, parse_json_layout, parse_text_layout
-from stablelego_jax.layout import TABLE_I_MASS_KG, LayoutError, Library, default_library, make_layout
+from stablelego_jax.layout import TABLE_I_MASS_KG, Library, default_library, make_layout
 
-from conftest import SHARED_BRICKGPT as BRICKGPT, SHARED_REF as REF, needs_shared  # noqa: E402
+from conftest import SHARED_BRICKGPT as BRICKGPT, SHARED_REF as REF, needs_shared, raises_layout_error as _raises  # noqa: E402
 
 NOT_LAYOUTS = {"config.json", "labels.json", "lego_library.json"}
 
@@ -34,15 +34,6 @@ def _brickgpt_txts():
 
 def _ids(paths):
     return [os.path.basename(p) for p in paths]
-
-
-def _raises(fn, *must_contain):
-    with pytest.raises(LayoutError) as ei:
-        fn()
-    msg = str(ei.value)
-    for s in must_contain:
-        assert s in msg, f"{s!r} not in {msg!r}"
-    return ei.value
 
 
 def _brick(x=0, y=0, z=0, bid=2, ori=0, **extra):

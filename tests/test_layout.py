@@ -19,22 +19,13 @@ from stablelego_jax.layout import (
     make_layout,
 )
 
-from conftest import SHARED_REF as REF, needs_shared  # noqa: E402
+from conftest import SHARED_REF as REF, needs_shared, raises_layout_error as _raises  # noqa: E402
 
 SRC = "/some/dir/layout.json"
 
 
 def _two(pos2=(4, 0, 0), size2=(2, 4), mass2=2.16e-3, keys=("a", "b")):
     return make_layout(keys, [(0, 0, 0), pos2], [(2, 4), size2], [2.16e-3, mass2], source=SRC)
-
-
-def _raises(fn, *must_contain):
-    with pytest.raises(LayoutError) as ei:
-        fn()
-    msg = str(ei.value)
-    for s in must_contain:
-        assert s in msg, f"{s!r} not in {msg!r}"
-    return ei.value
 
 
 # ---------------------------------------------------------------------------
