@@ -82,9 +82,11 @@ def fits(lay) -> bool:
     return lay.n <= SHAPE[0] and p.col_kind.shape[0] <= SHAPE[1] and p.group.shape[1] <= SHAPE[2]
 
 
-def fd_case(name, lay, rng):
-    prob = pad_soft(soft_problem(lay), *SHAPE)
-    n = lay.n
+def random_point(n: int, rng):
+    """Where a case's loss and gradient are taken: existence weights (SHAPE[0],)
+    with the n real bricks present and a third of them drawn in [0.3, 0.9],
+    and loads (SHAPE[0],) kg on another third drawn in [0, 0.05]; and the
+    indices of the drawn weights (the weight components compared)."""
     w = np.zeros(SHAPE[0])
     w[:n] = 1.0
     soft_idx = rng.choice(n, size=max(1, n // 3), replace=False)
@@ -92,6 +94,13 @@ def fd_case(name, lay, rng):
     loads = np.zeros(SHAPE[0])
     li = rng.choice(n, size=max(1, n // 3), replace=False)
     loads[li] = rng.uniform(0.0, 0.05, size=len(li))
+    return w, loads, soft_idx
+
+
+def fd_case(name, lay, rng):
+    prob = pad_soft(soft_problem(lay), *SHAPE)
+    n = lay.n
+    w, loads, soft_idx = random_point(n, rng)
     gw, gl = (np.asarray(v) for v in GRAD(w, loads, prob))
     out = {"name": name, "n_bricks": n}
     for what, g, pool in (("weights", gw, soft_idx), ("loads", gl, np.arange(n))):

@@ -145,13 +145,7 @@ def bound_maps() -> None:
 def fd_case(name, lay, rng, differences=True):
     dense, layered = problems(lay)
     n = lay.n
-    w = np.zeros(SHAPE[0])
-    w[:n] = 1.0
-    soft_idx = rng.choice(n, size=max(1, n // 3), replace=False)
-    w[soft_idx] = rng.uniform(0.3, 0.9, size=len(soft_idx))
-    loads = np.zeros(SHAPE[0])
-    li = rng.choice(n, size=max(1, n // 3), replace=False)
-    loads[li] = rng.uniform(0.0, 0.05, size=len(li))
+    w, loads, soft_idx = lg.random_point(n, rng)
     gd = [np.asarray(v) for v in GRAD(w, loads, dense)]
     gl_ = [np.asarray(v) for v in GRAD(w, loads, layered)]
     ld, ll = float(LOSS(w, loads, dense)), float(LOSS(w, loads, layered))
