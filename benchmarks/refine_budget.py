@@ -95,6 +95,7 @@ def main(argv=None) -> int:
                 return 2
     if "heuristic_refined" in methods:
         starts["heuristic_refined"] = {n: merge_voxels(s.vox, source=n) for n, s in shapes.items()}
+
     def carried(r) -> bool:
         """Whether row ``r`` (of a method refined here) holds within the new budget as it is."""
         return r["stable"] and (a.solves is None or r["exact_calls"] <= a.solves)
