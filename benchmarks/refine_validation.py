@@ -147,17 +147,25 @@ def _runs_table(runs, folders, lams, seeds, budget, heur_val) -> None:
         print(f"| {lam:g} | " + " | ".join(cells) + f" | {sum(means) / len(means):.3f} ({n} runs) |")
 
 
+def _lambda_rule(title: str, by_lam: dict[float, list[float]], seeds, heuristic: float) -> float:
+    """Prints ``title``, the validation table of ``by_lam`` (lambda -> the
+    seeds' stable fractions) and the lambda :func:`choose_lambda` picks,
+    against the heuristic's fraction; returns it."""
+    print(title)
+    _table("lambda", by_lam, seeds, "")
+    lam = choose_lambda(by_lam)
+    m = sum(by_lam[lam]) / len(seeds)
+    print(f"chosen lambda: {lam:g} ({'reaches' if m >= heuristic else 'does not reach'} the heuristic on validation)")
+    return lam
+
+
 def _solves_rule(runs, lams, seeds, n: int, heur_val: dict[str, bool], hh: dict[str, bool]) -> None:
     """Rule 3: lambda chosen on validation with ``n`` exact solves a shape,
     and the held-out result at it (then the other lambdas' where run)."""
     by_lam = {lam: [_fraction(os.path.join(runs, "val", f"solves{n}", f"lam{lam:g}_seed{s}_val.jsonl"), heur_val)
                     for s in seeds] for lam in lams}
-    print(f"rule 3, the lambda with {n} exact solves a shape (no clock):")
-    _table("lambda", by_lam, seeds, "")
-    lam = choose_lambda(by_lam)
-    h = sum(heur_val.values()) / len(heur_val)
-    m = sum(by_lam[lam]) / len(seeds)
-    print(f"chosen lambda: {lam:g} ({'reaches' if m >= h else 'does not reach'} the heuristic on validation)")
+    lam = _lambda_rule(f"rule 3, the lambda with {n} exact solves a shape (no clock):", by_lam, seeds,
+                       sum(heur_val.values()) / len(heur_val))
     name = f"heldout_solves{n}.jsonl"
     print(_heldout(runs, lam, seeds, n, hh, name, " exact solves"))
     for other in lams:
@@ -197,11 +205,7 @@ def main(argv=None) -> int:
         if len(lams) > 1:
             by_lam = {lam: (fracs[b] if lam == lams[0] else _fractions(a.runs, lam, seeds, b, heur_val))
                       for lam in lams}
-            print(f"rule 2, the lambda at {b:g} s:")
-            _table("lambda", by_lam, seeds, "")
-            lam = choose_lambda(by_lam)
-            m = sum(by_lam[lam]) / len(seeds)
-            print(f"chosen lambda: {lam:g} ({'reaches' if m >= h else 'does not reach'} the heuristic on validation)")
+            lam = _lambda_rule(f"rule 2, the lambda at {b:g} s:", by_lam, seeds, h)
             print(_heldout(a.runs, lam, seeds, b, hh))
         for folder in a.replicates:
             for name in sorted(os.listdir(folder)):
