@@ -282,6 +282,30 @@ def test_decoding_never_overlaps_and_stays_inside():
         np.testing.assert_allclose(np.asarray(net.coverage(jnp.asarray(q[None])))[0], count)
 
 
+def test_size_prior_orders_by_probability_times_area():
+    """decode(size_prior=beta) takes placements in the order prob x area^beta:
+    a 2x2 of probability 0.1 goes before the 1x1s of 0.5 when 0.1 x 4^beta
+    > 0.5; beta 0 is the plain order; the candidates never change."""
+    c = np.zeros((2, 2, 1), bool)
+    c[:] = True
+    valid = net.valid_placements(c)
+    k22 = net.TYPES.index((2, 2))
+    p = np.zeros(valid.shape)
+    p[:, :, 0, net.TYPES.index((1, 1))] = 0.5
+    p[0, 0, 0, k22] = 0.1
+    plain = net.decode(p, 0.05, fill=True, valid=valid)
+    np.testing.assert_array_equal(plain[0], net.decode(p, 0.05, True, valid, size_prior=0.0)[0])
+    assert len(plain[0]) == 4 and (plain[2] == 1).all()
+    for beta, n in ((1.0, 4), (2.0, 1)):  # 0.1 x 4 < 0.5 < 0.1 x 16
+        idx, _, size = net.decode(p, 0.05, fill=True, valid=valid, size_prior=beta)
+        assert len(idx) == n and net.decoded_iou(c, idx[:, :3], size) == 1.0
+    # the strict decoding keeps its threshold: the 2x2 is below 0.2, whatever beta
+    assert len(net.decode(p, 0.2, size_prior=2.0)[0]) == 4
+    for bad in (-1.0, float("nan"), float("inf")):
+        with pytest.raises(ValueError, match="size_prior"):
+            net.decode(p, 0.5, size_prior=bad)
+
+
 def test_coverage_sums_every_placement_window_and_its_gradient():
     # a direct count: each placement adds its probability to the cells of its
     # window, clipped to the grid
@@ -362,6 +386,17 @@ def test_evaluate_scores_each_decoding_and_refines_the_filled_one(tmp_path, caps
     err = capsys.readouterr().err
     assert err.count("generator_refined [") == len(shapes) == err.count("heuristic_refined [")
     assert all(by[(n, "heuristic_refined")]["stable"] >= by[(n, "heuristic")]["stable"] for n in shapes)
+    # --size-prior: the generator's rows carry beta (the heuristic's do not); filled covers stay exact
+    out2 = str(tmp_path / "prior.jsonl")
+    assert main(["evaluate", "--checkpoint", ckpt, "--out", out2, "--size-prior", "4", "--heuristic"]) == 0
+    rows2 = [json.loads(line) for line in open(out2)]
+    assert {r["method"] for r in rows2} == {"generator", "generator_filled", "heuristic"}
+    assert all(r.get("size_prior") == (None if r["method"] == "heuristic" else 4.0) for r in rows2)
+    assert all(r["iou"] == 1.0 for r in rows2 if r["method"] == "generator_filled")
+    for bad in ("-1", "nan"):
+        with pytest.raises(SystemExit) as exc:
+            main(["evaluate", "--checkpoint", ckpt, "--out", str(tmp_path / "x.jsonl"), "--size-prior", bad])
+        assert exc.value.code == 2 and not (tmp_path / "x.jsonl").exists()
     # a refinement budget that is not a positive number of seconds: a usage error, nothing written
     with pytest.raises(SystemExit) as exc:
         main(["evaluate", "--checkpoint", ckpt, "--out", str(tmp_path / "x.jsonl"), "--refine", "0"])

@@ -35,6 +35,20 @@ def int_or_auto(lo: int):
     return parse
 
 
+def non_negative_number(v: str) -> float:
+    """argparse ``type``: a finite number >= 0."""
+    import argparse
+    import math
+
+    try:
+        x = float(v)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number >= 0, got {v!r}") from None
+    if not (math.isfinite(x) and x >= 0):
+        raise argparse.ArgumentTypeError(f"expected a finite number >= 0, got {v}")
+    return x
+
+
 def positive_seconds(v: str) -> float:
     """argparse ``type``: a number of seconds > 0."""
     import argparse

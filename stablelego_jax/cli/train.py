@@ -8,7 +8,7 @@ import os
 __all__ = ["add_parsers", "cmd_train", "cmd_evaluate"]
 
 from ..train import CONFIGS
-from .common import int_at_least, positive_seconds
+from .common import int_at_least, non_negative_number, positive_seconds
 from ..train.shapes import SPLITS
 
 
@@ -50,6 +50,9 @@ def add_parsers(sub) -> None:
     e.add_argument("--refine-solves", type=int_at_least(1), default=None, metavar="N",
                    help="the refinement's budget in exact solves, alone (no time limit: the same rows on any "
                         "machine) or with --refine (whichever is spent first)")
+    e.add_argument("--size-prior", type=non_negative_number, default=0.0, metavar="BETA",
+                   help="decode in the order probability x (brick area in studs)^BETA, which favours long bricks "
+                        "(default 0: by probability alone); rows carry size_prior when it is not 0")
     e.add_argument("--split", choices=SPLITS, default="heldout")
     e.set_defaults(func=cmd_evaluate)
 
@@ -65,5 +68,5 @@ def cmd_evaluate(args) -> int:
     from ..train.evaluate import run
 
     return run(args.checkpoint, args.out, args.split, args.heuristic, args.untrained, args.refine,
-               args.refine_solves)
+               args.refine_solves, args.size_prior)
 

@@ -1,7 +1,8 @@
 """Score a trained generator on the held-out shapes with the exact solver.
 
     stablelego evaluate --checkpoint OUT/checkpoint.npz --out RESULTS.jsonl
-        [--heuristic] [--untrained] [--refine SECONDS] [--refine-solves N] [--split heldout|val|train]
+        [--heuristic] [--untrained] [--refine SECONDS] [--refine-solves N] [--size-prior BETA]
+        [--split heldout|val|train]
 
 Decodes two layouts per shape: "generator" (greedy, probabilities >= the
 config's ``threshold``, no overlaps, nothing forced in: cells can stay
@@ -25,7 +26,11 @@ one path, so N alone gives the same rows on any machine and under any
 load, where a wall-clock budget lets a slower run stop earlier): IoU 1,
 stands by the exact solver or not; with
 ``--heuristic`` also "heuristic_refined", the same refinement started from
-the merge (the control: what the generator's start adds). The summary
+the merge (the control: what the generator's start adds). ``--size-prior
+BETA`` decodes in the order probability x (brick area)^BETA instead of
+probability (:func:`stablelego_jax.train.net.decode`): the generator's
+rows, and with them the starts of the refinement, then carry
+``size_prior``; the heuristic's rows do not depend on it. The summary
 (stable fraction, mean IoU per method) goes to stdout, a line per shape
 refined to stderr; the file is written atomically.
 """
@@ -50,16 +55,19 @@ __all__ = ["evaluate", "refined_rows", "summary", "run"]
 
 @x64
 def evaluate(ckpt: str, split: str = "heldout", heuristic: bool = False, untrained: bool = False,
-             refine: float | None = None, log=None, refine_solves: int | None = None) -> list[dict]:
+             refine: float | None = None, log=None, refine_solves: int | None = None,
+             size_prior: float = 0.0) -> list[dict]:
     """Rows (one per shape and method) for the checkpoint ``ckpt``
     (``refine``: seconds of refinement per shape, ``refine_solves``: exact
-    solves per shape, either or both; see the module docstring; ``log``: a
-    stream for a line per shape refined)."""
+    solves per shape, either or both; ``size_prior``: the decoding's beta;
+    see the module docstring; ``log``: a stream for a line per shape
+    refined)."""
     refining = refine is not None or refine_solves is not None
     params, _, step, _, cfg, _ = load_checkpoint(ckpt)
     shapes = split_shapes(cfg, split)
     arr = Arrays(shapes, cfg["crop"], cfg["grid"])
     probs_fn = make_fns(cfg)[0]
+    prior = {"size_prior": float(size_prior)} if size_prior else {}
     nets = [("generator", params, step)]
     if untrained:
         nets.append(("untrained", initial_params(cfg), 0))
@@ -67,17 +75,17 @@ def evaluate(ckpt: str, split: str = "heldout", heuristic: bool = False, untrain
     for name, prm, st in nets:
         for method, fill in ((name, False), (name + "_filled", True)):
             with one_blas_thread():
-                decoded = decoded_layouts(prm, arr, cfg, probs_fn, fill=fill)
+                decoded = decoded_layouts(prm, arr, cfg, probs_fn, fill=fill, size_prior=size_prior)
                 scored = score_decoded(decoded)
             if method == "generator_filled":
                 filled = [lay for lay, _ in decoded]  # the starts of --refine
             for s, (stable, iou, nb) in zip(shapes, scored):
                 rows.append({"shape": s.name, "kind": s.kind, "method": method, "lam": cfg["lam"],
-                             "seed": cfg["seed"], "step": st, "stable": stable, "iou": round(iou, 6),
+                             "seed": cfg["seed"], "step": st, **prior, "stable": stable, "iou": round(iou, 6),
                              "n_bricks": nb, "n_cells": int(s.vox.sum())})
     if refining:
         rows += refined_rows("generator_refined", shapes, filled, refine, log,
-                             {"lam": cfg["lam"], "seed": cfg["seed"], "step": step}, refine_solves)
+                             {"lam": cfg["lam"], "seed": cfg["seed"], "step": step, **prior}, refine_solves)
     if heuristic:
         merged = [merge_voxels(s.vox, source=s.name) for s in shapes]
         for s, lay in zip(shapes, merged):
@@ -131,7 +139,7 @@ def summary(rows: list[dict]) -> dict:
 
 
 def run(checkpoint: str, out: str, split: str = "heldout", heuristic: bool = False, untrained: bool = False,
-        refine: float | None = None, refine_solves: int | None = None) -> int:
+        refine: float | None = None, refine_solves: int | None = None, size_prior: float = 0.0) -> int:
     """``stablelego evaluate``: score a checkpoint's decoded layouts with the
     exact solver, write the rows to ``out``; exit status (2: missing or bad
     checkpoint, nothing written)."""
@@ -140,7 +148,8 @@ def run(checkpoint: str, out: str, split: str = "heldout", heuristic: bool = Fal
         return 2
     t0 = time.perf_counter()
     try:
-        rows = evaluate(checkpoint, split, heuristic, untrained, refine, log=sys.stderr, refine_solves=refine_solves)
+        rows = evaluate(checkpoint, split, heuristic, untrained, refine, log=sys.stderr, refine_solves=refine_solves,
+                        size_prior=size_prior)
     except (OSError, ValueError, KeyError) as exc:
         print(f"error: {checkpoint}: cannot evaluate: {exc}", file=sys.stderr)
         return 2

@@ -237,7 +237,8 @@ def spanning_placements(vox: np.ndarray) -> np.ndarray:
     return valid_placements(vox) & (s > 0) & (s < _area())
 
 
-def decode(prob: np.ndarray, threshold: float = 0.5, fill: bool = False, valid: np.ndarray | None = None):
+def decode(prob: np.ndarray, threshold: float = 0.5, fill: bool = False, valid: np.ndarray | None = None,
+           size_prior: float = 0.0):
     """Greedy non-overlapping layout from one shape's (X, Y, Z, K) probabilities.
 
     Placements with probability >= ``threshold`` are taken highest first,
@@ -247,15 +248,23 @@ def decode(prob: np.ndarray, threshold: float = 0.5, fill: bool = False, valid: 
     bool; when None, those of probability > 0), so the layout covers the
     shape exactly (IoU 1 by construction; the probabilities still choose
     the bricks). Pass ``valid``: a saturated network's probabilities
-    underflow to exactly 0 and would leave cells empty. Returns (idx (n, 4)
-    int [x, y, z, type], pos (n, 3), size (n, 2)).
+    underflow to exactly 0 and would leave cells empty. ``size_prior``
+    (beta >= 0): the list is ordered by ``prob * area ** beta`` (area in
+    studs) instead of ``prob``, which favours long bricks over many small
+    ones of nearly the same probability; 0 (default) is the plain order,
+    and the candidates are the same for any beta. Returns (idx (n, 4) int
+    [x, y, z, type], pos (n, 3), size (n, 2)).
     """
+    if not (np.isfinite(size_prior) and size_prior >= 0):
+        raise ValueError(f"size_prior must be a finite number >= 0, got {size_prior}")
     prob = np.asarray(prob)
     cand = np.argwhere(prob >= threshold)
     if fill:
         cand = np.argwhere(prob > 0 if valid is None else np.asarray(valid, bool))
-    order = np.argsort(-prob[tuple(cand.T)], kind="stable")
-    cand = cand[order]
+    key = prob[tuple(cand.T)].astype(np.float64)
+    if size_prior:
+        key = key * _area()[cand[:, 3]].astype(np.float64) ** size_prior
+    cand = cand[np.argsort(-key, kind="stable")]
     occ = np.zeros(prob.shape[:3], bool)
     keep = []
     for x, y, z, k in cand.tolist():

@@ -803,16 +803,18 @@ def score_layout(layout) -> bool:
 
 
 @x64
-def decoded_layouts(params, arrays: Arrays, cfg: dict, probs_fn, chunk: int = 8, fill: bool = False):
+def decoded_layouts(params, arrays: Arrays, cfg: dict, probs_fn, chunk: int = 8, fill: bool = False,
+                    size_prior: float = 0.0):
     """Per shape: (layout in the (G, G, G) grid or None when empty, iou) of
-    the network's decoding (``fill``: see :func:`stablelego_jax.train.net.decode`)."""
+    the network's decoding (``fill``, ``size_prior``: see
+    :func:`stablelego_jax.train.net.decode`)."""
     from .net import decode, decoded_iou
 
     out = []
     for s in range(0, len(arrays.x), chunk):
         p = np.asarray(probs_fn(params, arrays.x[s:s + chunk], arrays.valid[s:s + chunk]))
         for j in range(len(p)):
-            _, pos, size = decode(p[j], cfg["threshold"], fill, arrays.valid[s + j])
+            _, pos, size = decode(p[j], cfg["threshold"], fill, arrays.valid[s + j], size_prior)
             iou = decoded_iou(arrays.target[s + j], pos, size)
             out.append((layout_of(pos + arrays.offset[s + j], size), iou))  # back into the (G, G, G) grid
     return out
