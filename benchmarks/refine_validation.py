@@ -2,9 +2,10 @@
 
     python benchmarks/refine_validation.py [--runs benchmarks/results/train_full_s56] [--budgets 60,120]
         [--lams 1000,0] [--seeds 0,1,2] [--replicates RUNS/val/replicate [RUNS/val/replicate2 ...]]
-        [--solves N]
+        [--solves N [--priors 0,4,8]]
 
-Applies two rules (three with ``--solves``), each committed before its runs:
+Applies two rules (three with ``--solves``, four with ``--priors``), each
+committed before its runs:
 
 1. ``RUNS/val/PROTOCOL.md``: for the first lambda of ``--lams`` (the one
    chosen without refinement), B = the smallest budget at which the mean
@@ -20,6 +21,14 @@ Applies two rules (three with ``--solves``), each committed before its runs:
    rows); the held-out result at the chosen lambda from
    ``RUNS/lam{L}_seed{K}/heldout_solves{N}.jsonl``, and the other lambda's
    where those files exist (for the record).
+4. ``RUNS/val/PROTOCOL_PRIOR.md`` (``--priors``, with ``--solves N``): at
+   rule 3's lambda L and N solves, B = the decoding's size prior (beta of
+   ``evaluate --size-prior``) in ``--priors`` with the higher validation
+   mean, the smaller on a tie, from
+   ``RUNS/val/prior/lam{L}_seed{K}_b{beta}_val.jsonl`` (beta 0: rule 3's
+   files); the held-out result at B (beta 0: rule 3's; else
+   ``RUNS/lam{L}_seed{K}/heldout_prior_b{B}_solves{N}.jsonl``), and the
+   other betas' where those files exist (for the record).
 
 Reads
 
@@ -147,21 +156,22 @@ def _runs_table(runs, folders, lams, seeds, budget, heur_val) -> None:
         print(f"| {lam:g} | " + " | ".join(cells) + f" | {sum(means) / len(means):.3f} ({n} runs) |")
 
 
-def _lambda_rule(title: str, by_lam: dict[float, list[float]], seeds, heuristic: float) -> float:
-    """Prints ``title``, the validation table of ``by_lam`` (lambda -> the
-    seeds' stable fractions) and the lambda :func:`choose_lambda` picks,
-    against the heuristic's fraction; returns it."""
+def _lambda_rule(title: str, by_lam: dict[float, list[float]], seeds, heuristic: float, label: str = "lambda") -> float:
+    """Prints ``title``, the validation table of ``by_lam`` (lambda, or the
+    setting named ``label``, -> the seeds' stable fractions) and the key
+    :func:`choose_lambda` picks, against the heuristic's fraction; returns it."""
     print(title)
-    _table("lambda", by_lam, seeds, "")
+    _table(label, by_lam, seeds, "")
     lam = choose_lambda(by_lam)
     m = sum(by_lam[lam]) / len(seeds)
-    print(f"chosen lambda: {lam:g} ({'reaches' if m >= heuristic else 'does not reach'} the heuristic on validation)")
+    print(f"chosen {label}: {lam:g} ({'reaches' if m >= heuristic else 'does not reach'} the heuristic on validation)")
     return lam
 
 
-def _solves_rule(runs, lams, seeds, n: int, heur_val: dict[str, bool], hh: dict[str, bool]) -> None:
+def _solves_rule(runs, lams, seeds, n: int, heur_val: dict[str, bool], hh: dict[str, bool]) -> float:
     """Rule 3: lambda chosen on validation with ``n`` exact solves a shape,
-    and the held-out result at it (then the other lambdas' where run)."""
+    and the held-out result at it (then the other lambdas' where run);
+    returns the lambda."""
     by_lam = {lam: [_fraction(os.path.join(runs, "val", f"solves{n}", f"lam{lam:g}_seed{s}_val.jsonl"), heur_val)
                     for s in seeds] for lam in lams}
     lam = _lambda_rule(f"rule 3, the lambda with {n} exact solves a shape (no clock):", by_lam, seeds,
@@ -171,6 +181,32 @@ def _solves_rule(runs, lams, seeds, n: int, heur_val: dict[str, bool], hh: dict[
     for other in lams:
         if other != lam and all(os.path.isfile(os.path.join(runs, f"lam{other:g}_seed{s}", name)) for s in seeds):
             print("for the record, not chosen: " + _heldout(runs, other, seeds, n, hh, name, " exact solves"))
+    return lam
+
+
+def _prior_rule(runs, lam: float, priors: list[float], seeds, n: int, heur_val: dict[str, bool],
+                hh: dict[str, bool]) -> None:
+    """Rule 4: the size prior chosen on validation at lambda ``lam`` and ``n``
+    exact solves (``priors`` ascending: the smaller on a tie), and the
+    held-out result at it (then the other priors' where run)."""
+
+    def val(beta):
+        if beta == 0:
+            return os.path.join(runs, "val", f"solves{n}", f"lam{lam:g}_seed{{s}}_val.jsonl")
+        return os.path.join(runs, "val", "prior", f"lam{lam:g}_seed{{s}}_b{beta:g}_val.jsonl")
+
+    def heldout_name(beta):
+        return f"heldout_solves{n}.jsonl" if beta == 0 else f"heldout_prior_b{beta:g}_solves{n}.jsonl"
+
+    by_beta = {beta: [_fraction(val(beta).format(s=s), heur_val) for s in seeds] for beta in sorted(priors)}
+    beta = _lambda_rule(f"rule 4, the decoding's size prior at lambda {lam:g} with {n} exact solves a shape:",
+                        by_beta, seeds, sum(heur_val.values()) / len(heur_val), "beta")
+    print(f"beta {beta:g}: " + _heldout(runs, lam, seeds, n, hh, heldout_name(beta), " exact solves"))
+    for other in by_beta:
+        if other != beta and all(os.path.isfile(os.path.join(runs, f"lam{lam:g}_seed{s}", heldout_name(other)))
+                                 for s in seeds):
+            print(f"for the record, not chosen: beta {other:g}: "
+                  + _heldout(runs, lam, seeds, n, hh, heldout_name(other), " exact solves"))
 
 
 def main(argv=None) -> int:
@@ -183,10 +219,15 @@ def main(argv=None) -> int:
                     help="a folder of reruns of validation files (same names): each compared with its original")
     ap.add_argument("--solves", type=int, default=None, metavar="N",
                     help="also rule 3: lambda chosen with N exact solves a shape (RUNS/val/solves{N}/)")
+    ap.add_argument("--priors", default=None, metavar="B,B,...",
+                    help="with --solves, also rule 4: the decoding's size prior among these (RUNS/val/prior/)")
     a = ap.parse_args(argv)
     budgets = [float(b) for b in a.budgets.split(",")]
     lams = [float(x) for x in a.lams.split(",")]
     seeds = [int(s) for s in a.seeds.split(",")]
+    if a.priors is not None and a.solves is None:
+        ap.error("--priors needs --solves")
+    priors = [float(x) for x in a.priors.split(",")] if a.priors is not None else []
     try:
         heur_val = _stable(all_rows(os.path.join(a.runs, "val", "val_heuristic.jsonl")), "heuristic")
         n = len(heur_val)
@@ -214,7 +255,9 @@ def main(argv=None) -> int:
         if a.replicates:
             _runs_table(a.runs, a.replicates, lams, seeds, b, heur_val)
         if a.solves is not None:
-            _solves_rule(a.runs, lams, seeds, a.solves, heur_val, hh)
+            lam = _solves_rule(a.runs, lams, seeds, a.solves, heur_val, hh)
+            if priors:
+                _prior_rule(a.runs, lam, priors, seeds, a.solves, heur_val, hh)
     except RowsError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
