@@ -393,6 +393,11 @@ def test_evaluate_scores_each_decoding_and_refines_the_filled_one(tmp_path, caps
     assert {r["method"] for r in rows2} == {"generator", "generator_filled", "heuristic"}
     assert all(r.get("size_prior") == (None if r["method"] == "heuristic" else 4.0) for r in rows2)
     assert all(r["iou"] == 1.0 for r in rows2 if r["method"] == "generator_filled")
+    # --split fresh: N new objects of the config's recipe, none of them held out
+    out3 = str(tmp_path / "fresh.jsonl")
+    assert main(["evaluate", "--checkpoint", ckpt, "--out", out3, "--split", "fresh", "--fresh", "3"]) == 0
+    fresh = {r["shape"] for r in map(json.loads, open(out3))}
+    assert len(fresh) == 3 and not fresh & set(shapes)
     for bad in ("-1", "nan"):
         with pytest.raises(SystemExit) as exc:
             main(["evaluate", "--checkpoint", ckpt, "--out", str(tmp_path / "x.jsonl"), "--size-prior", bad])

@@ -53,7 +53,11 @@ def add_parsers(sub) -> None:
     e.add_argument("--size-prior", type=non_negative_number, default=0.0, metavar="BETA",
                    help="decode in the order probability x (brick area in studs)^BETA, which favours long bricks "
                         "(default 0: by probability alone); rows carry size_prior when it is not 0")
-    e.add_argument("--split", choices=SPLITS, default="heldout")
+    e.add_argument("--split", choices=SPLITS, default="heldout",
+                   help="the config's held-out, validation or training shapes, or (fresh) procedural objects of "
+                        "its recipe that none of them holds")
+    e.add_argument("--fresh", type=int_at_least(1), default=100, metavar="N",
+                   help="the number of shapes of --split fresh (default 100)")
     e.set_defaults(func=cmd_evaluate)
 
 
@@ -68,5 +72,5 @@ def cmd_evaluate(args) -> int:
     from ..train.evaluate import run
 
     return run(args.checkpoint, args.out, args.split, args.heuristic, args.untrained, args.refine,
-               args.refine_solves, args.size_prior)
+               args.refine_solves, args.size_prior, args.fresh)
 

@@ -2,7 +2,7 @@
 
     stablelego evaluate --checkpoint OUT/checkpoint.npz --out RESULTS.jsonl
         [--heuristic] [--untrained] [--refine SECONDS] [--refine-solves N] [--size-prior BETA]
-        [--split heldout|val|train]
+        [--split heldout|val|train|fresh [--fresh N]]
 
 Decodes two layouts per shape: "generator" (greedy, probabilities >= the
 config's ``threshold``, no overlaps, nothing forced in: cells can stay
@@ -30,7 +30,11 @@ the merge (the control: what the generator's start adds). ``--size-prior
 BETA`` decodes in the order probability x (brick area)^BETA instead of
 probability (:func:`stablelego_jax.train.net.decode`): the generator's
 rows, and with them the starts of the refinement, then carry
-``size_prior``; the heuristic's rows do not depend on it. The summary
+``size_prior``; the heuristic's rows do not depend on it. ``--split
+fresh`` scores N (``--fresh``, default 100) procedural objects of the
+config's recipe that are in none of its splits
+(:func:`stablelego_jax.train.shapes.fresh_shapes`): more shapes for a
+choice made on validation, with no retraining. The summary
 (stable fraction, mean IoU per method) goes to stdout, a line per shape
 refined to stderr; the file is written atomically.
 """
@@ -56,15 +60,15 @@ __all__ = ["evaluate", "refined_rows", "summary", "run"]
 @x64
 def evaluate(ckpt: str, split: str = "heldout", heuristic: bool = False, untrained: bool = False,
              refine: float | None = None, log=None, refine_solves: int | None = None,
-             size_prior: float = 0.0) -> list[dict]:
+             size_prior: float = 0.0, n_fresh: int = 100) -> list[dict]:
     """Rows (one per shape and method) for the checkpoint ``ckpt``
     (``refine``: seconds of refinement per shape, ``refine_solves``: exact
     solves per shape, either or both; ``size_prior``: the decoding's beta;
-    see the module docstring; ``log``: a stream for a line per shape
+    ``n_fresh``: the shapes of the split "fresh"; see the module docstring; ``log``: a stream for a line per shape
     refined)."""
     refining = refine is not None or refine_solves is not None
     params, _, step, _, cfg, _ = load_checkpoint(ckpt)
-    shapes = split_shapes(cfg, split)
+    shapes = split_shapes(cfg, split, n_fresh)
     arr = Arrays(shapes, cfg["crop"], cfg["grid"])
     probs_fn = make_fns(cfg)[0]
     prior = {"size_prior": float(size_prior)} if size_prior else {}
@@ -139,7 +143,8 @@ def summary(rows: list[dict]) -> dict:
 
 
 def run(checkpoint: str, out: str, split: str = "heldout", heuristic: bool = False, untrained: bool = False,
-        refine: float | None = None, refine_solves: int | None = None, size_prior: float = 0.0) -> int:
+        refine: float | None = None, refine_solves: int | None = None, size_prior: float = 0.0,
+        n_fresh: int = 100) -> int:
     """``stablelego evaluate``: score a checkpoint's decoded layouts with the
     exact solver, write the rows to ``out``; exit status (2: missing or bad
     checkpoint, nothing written)."""
@@ -149,7 +154,7 @@ def run(checkpoint: str, out: str, split: str = "heldout", heuristic: bool = Fal
     t0 = time.perf_counter()
     try:
         rows = evaluate(checkpoint, split, heuristic, untrained, refine, log=sys.stderr, refine_solves=refine_solves,
-                        size_prior=size_prior)
+                        size_prior=size_prior, n_fresh=n_fresh)
     except (OSError, ValueError, KeyError) as exc:
         print(f"error: {checkpoint}: cannot evaluate: {exc}", file=sys.stderr)
         return 2

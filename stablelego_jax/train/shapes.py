@@ -13,7 +13,9 @@ for training at full scale with the layered factorisation (the config's
 ``layers``), a CPU step of 8 shapes costing minutes (BENCHMARKS.md).
 
 Every shape is one *object* (a procedural seed or a mesh file); the split
-into train and held-out is over objects, seeded.
+into train and held-out is over objects, seeded. :func:`fresh_shapes` draws
+more procedural objects of the same recipe from the seeds a dataset did not
+use: a larger set for choices made on validation, with no retraining.
 """
 from __future__ import annotations
 
@@ -24,7 +26,7 @@ import os
 import numpy as np
 
 __all__ = ["Shape", "KINDS", "FULL_KINDS", "PROCEDURAL", "SPLITS", "procedural_shape", "full_shape", "mesh_shapes",
-           "build_dataset"]
+           "build_dataset", "procedural_seeds", "fresh_shapes"]
 
 KINDS = ("cantilever", "tee", "bridge", "table", "mushroom", "stairs", "box")
 #: the kinds of :func:`full_shape`: :func:`~stablelego_jax.generate.voxels.random_voxel_shape`'s,
@@ -32,8 +34,11 @@ KINDS = ("cantilever", "tee", "bridge", "table", "mushroom", "stairs", "box")
 FULL_KINDS = ("blob", "boxes", "spheres", "arch", "overhang")
 #: the procedural sources of :func:`build_dataset`
 PROCEDURAL = ("small", "full")
-#: the splits of a config's shapes (:func:`stablelego_jax.train.train.split_shapes`)
-SPLITS = ("heldout", "val", "train")
+#: the splits of a config's shapes (:func:`stablelego_jax.train.train.split_shapes`); "fresh":
+#: procedural objects none of the others holds (:func:`fresh_shapes`)
+SPLITS = ("heldout", "val", "train", "fresh")
+#: procedural objects are drawn from the seeds 0 .. SEED_RANGE - 1
+SEED_RANGE = 10**5
 
 
 @dataclasses.dataclass(frozen=True)
@@ -150,7 +155,7 @@ def build_dataset(n_procedural: int, mesh_dir: str | None, seed: int, heldout_fr
     if procedural not in PROCEDURAL:
         raise ValueError(f"unknown procedural source {procedural!r} (known: {', '.join(PROCEDURAL)})")
     rng = np.random.default_rng(seed)
-    seeds = rng.choice(10**5, size=n_procedural, replace=False)
+    seeds = _draw_seeds(rng, n_procedural)
     make = procedural_shape if procedural == "small" else full_shape
     procs = [sh for sh in (make(int(s), grid) for s in seeds) if sh.vox.any()]
     meshes, skipped = mesh_shapes(mesh_dir, grid, mesh_extent, mesh_max_cells) if mesh_dir else ([], [])
@@ -161,3 +166,36 @@ def build_dataset(n_procedural: int, mesh_dir: str | None, seed: int, heldout_fr
         held += [group[i] for i in sorted(perm[:k])]
         train += [group[i] for i in sorted(perm[k:])]
     return train, held, skipped
+
+
+def _draw_seeds(rng: np.random.Generator, n: int) -> np.ndarray:
+    return rng.choice(SEED_RANGE, size=n, replace=False)
+
+
+def procedural_seeds(n_procedural: int, seed: int) -> np.ndarray:
+    """(n_procedural,) int: the procedural objects' seeds of
+    :func:`build_dataset` (the first draw of its generator)."""
+    return _draw_seeds(np.random.default_rng(seed), n_procedural)
+
+
+def fresh_shapes(n: int, n_procedural: int, seed: int, grid: int = 20, procedural: str = "small") -> list:
+    """``n`` procedural objects of the recipe of :func:`build_dataset` (same
+    ``procedural``, ``grid``) whose seeds are none of its ``n_procedural``
+    objects' (so none is in its train, validation or held-out shapes):
+    seeds drawn in a fixed order (seeded by ``seed``), empty draws skipped.
+    In the order of the draw."""
+    if procedural not in PROCEDURAL:
+        raise ValueError(f"unknown procedural source {procedural!r} (known: {', '.join(PROCEDURAL)})")
+    if n < 0:
+        raise ValueError(f"the number of fresh shapes must be >= 0, got {n}")
+    used = set(procedural_seeds(n_procedural, seed).tolist())
+    make = procedural_shape if procedural == "small" else full_shape
+    out = []
+    for s in np.random.default_rng([seed, 3]).permutation(SEED_RANGE).tolist():
+        if len(out) == n:
+            break
+        if s not in used:
+            sh = make(int(s), grid)
+            if sh.vox.any():
+                out.append(sh)
+    return out
