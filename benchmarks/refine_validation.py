@@ -2,10 +2,10 @@
 
     python benchmarks/refine_validation.py [--runs benchmarks/results/train_full_s56] [--budgets 60,120]
         [--lams 1000,0] [--seeds 0,1,2] [--replicates RUNS/val/replicate [RUNS/val/replicate2 ...]]
-        [--solves N [--priors 0,4,8]]
+        [--solves N [--priors 0,4,8] [--fresh-priors 0,8]]
 
-Applies two rules (three with ``--solves``, four with ``--priors``), each
-committed before its runs:
+Applies two rules (three with ``--solves``, four with ``--priors``, five
+with ``--fresh-priors``), each committed before its runs:
 
 1. ``RUNS/val/PROTOCOL.md``: for the first lambda of ``--lams`` (the one
    chosen without refinement), B = the smallest budget at which the mean
@@ -29,6 +29,13 @@ committed before its runs:
    files); the held-out result at B (beta 0: rule 3's; else
    ``RUNS/lam{L}_seed{K}/heldout_prior_b{B}_solves{N}.jsonl``), and the
    other betas' where those files exist (for the record).
+5. ``RUNS/val/PROTOCOL_FRESH.md`` (``--fresh-priors``, with ``--solves
+   N``): the same choice on the validation shapes and the fresh ones
+   together (``evaluate --split fresh``:
+   ``RUNS/val/fresh/lam{L}_seed{K}_b{beta}_fresh.jsonl``, whose shapes must
+   be those of the heuristic rows in the first seed's beta-0 file), and the
+   held-out result at the chosen beta as in rule 4 (or that it is not run
+   yet).
 
 Reads
 
@@ -184,29 +191,67 @@ def _solves_rule(runs, lams, seeds, n: int, heur_val: dict[str, bool], hh: dict[
     return lam
 
 
+def prior_val_path(runs: str, lam: float, beta: float, seed: int, n: int) -> str:
+    """Rule 4's validation rows of one size prior and seed (beta 0: rule 3's)."""
+    if beta == 0:
+        return os.path.join(runs, "val", f"solves{n}", f"lam{lam:g}_seed{seed}_val.jsonl")
+    return os.path.join(runs, "val", "prior", f"lam{lam:g}_seed{seed}_b{beta:g}_val.jsonl")
+
+
+def prior_heldout_name(beta: float, n: int) -> str:
+    """A held-out run's file at one size prior (beta 0: rule 3's)."""
+    return f"heldout_solves{n}.jsonl" if beta == 0 else f"heldout_prior_b{beta:g}_solves{n}.jsonl"
+
+
 def _prior_rule(runs, lam: float, priors: list[float], seeds, n: int, heur_val: dict[str, bool],
                 hh: dict[str, bool]) -> None:
     """Rule 4: the size prior chosen on validation at lambda ``lam`` and ``n``
     exact solves (``priors`` ascending: the smaller on a tie), and the
     held-out result at it (then the other priors' where run)."""
-
-    def val(beta):
-        if beta == 0:
-            return os.path.join(runs, "val", f"solves{n}", f"lam{lam:g}_seed{{s}}_val.jsonl")
-        return os.path.join(runs, "val", "prior", f"lam{lam:g}_seed{{s}}_b{beta:g}_val.jsonl")
-
-    def heldout_name(beta):
-        return f"heldout_solves{n}.jsonl" if beta == 0 else f"heldout_prior_b{beta:g}_solves{n}.jsonl"
-
-    by_beta = {beta: [_fraction(val(beta).format(s=s), heur_val) for s in seeds] for beta in sorted(priors)}
+    by_beta = {beta: [_fraction(prior_val_path(runs, lam, beta, s, n), heur_val) for s in seeds]
+               for beta in sorted(priors)}
     beta = _lambda_rule(f"rule 4, the decoding's size prior at lambda {lam:g} with {n} exact solves a shape:",
                         by_beta, seeds, sum(heur_val.values()) / len(heur_val), "beta")
-    print(f"beta {beta:g}: " + _heldout(runs, lam, seeds, n, hh, heldout_name(beta), " exact solves"))
+    print(f"beta {beta:g}: " + _heldout(runs, lam, seeds, n, hh, prior_heldout_name(beta, n), " exact solves"))
     for other in by_beta:
-        if other != beta and all(os.path.isfile(os.path.join(runs, f"lam{lam:g}_seed{s}", heldout_name(other)))
-                                 for s in seeds):
-            print(f"for the record, not chosen: beta {other:g}: "
-                  + _heldout(runs, lam, seeds, n, hh, heldout_name(other), " exact solves"))
+        name = prior_heldout_name(other, n)
+        if other != beta and all(os.path.isfile(os.path.join(runs, f"lam{lam:g}_seed{s}", name)) for s in seeds):
+            print(f"for the record, not chosen: beta {other:g}: " + _heldout(runs, lam, seeds, n, hh, name, " exact solves"))
+
+
+def _fresh_rule(runs, lam: float, priors: list[float], seeds, n: int, heur_val: dict[str, bool],
+                hh: dict[str, bool]) -> None:
+    """Rule 5: rule 4's choice on the validation and fresh shapes together."""
+    fresh = os.path.join(runs, "val", "fresh", f"lam{lam:g}_seed{{s}}_b{{beta:g}}_fresh.jsonl")
+    first = fresh.format(s=seeds[0], beta=0)
+    heur_fresh = _stable(all_rows(first), "heuristic")
+    if not heur_fresh:
+        raise RowsError(f"{first}: no heuristic rows")
+    if set(heur_fresh) & set(heur_val):
+        raise RowsError(f"{first}: fresh shapes among the validation shapes")
+    n_all = len(heur_val) + len(heur_fresh)
+
+    def both(beta, s):
+        return (_fraction(prior_val_path(runs, lam, beta, s, n), heur_val) * len(heur_val)
+                + _fraction(fresh.format(s=s, beta=beta), heur_fresh) * len(heur_fresh)) / n_all
+
+    hf = sum(heur_fresh.values())
+    print(f"fresh ({len(heur_fresh)} shapes): merge heuristic {hf}/{len(heur_fresh)} = {hf / len(heur_fresh):.3f}; "
+          f"validation + fresh ({n_all} shapes): {(sum(heur_val.values()) + hf) / n_all:.3f}")
+    ctrl = _stable(all_rows(first), "heuristic_refined")
+    if ctrl:
+        print(f"fresh: merge + the same refinement {sum(ctrl.values())}/{len(ctrl)} = {sum(ctrl.values()) / len(ctrl):.3f}")
+    by_fresh = {beta: [_fraction(fresh.format(s=s, beta=beta), heur_fresh) for s in seeds] for beta in sorted(priors)}
+    print("the fresh shapes alone:")
+    _table("beta", by_fresh, seeds, "")
+    by_beta = {beta: [both(beta, s) for s in seeds] for beta in sorted(priors)}
+    beta = _lambda_rule(f"rule 5, the size prior at lambda {lam:g} with {n} exact solves on validation + fresh "
+                        f"({n_all} shapes):", by_beta, seeds, (sum(heur_val.values()) + hf) / n_all, "beta")
+    name = prior_heldout_name(beta, n)
+    if all(os.path.isfile(os.path.join(runs, f"lam{lam:g}_seed{s}", name)) for s in seeds):
+        print(f"beta {beta:g}: " + _heldout(runs, lam, seeds, n, hh, name, " exact solves"))
+    else:
+        print(f"beta {beta:g}: the held-out runs ({name}) are not all there yet")
 
 
 def main(argv=None) -> int:
@@ -221,13 +266,17 @@ def main(argv=None) -> int:
                     help="also rule 3: lambda chosen with N exact solves a shape (RUNS/val/solves{N}/)")
     ap.add_argument("--priors", default=None, metavar="B,B,...",
                     help="with --solves, also rule 4: the decoding's size prior among these (RUNS/val/prior/)")
+    ap.add_argument("--fresh-priors", default=None, metavar="B,B,...",
+                    help="with --solves, also rule 5: the size prior among these on validation + fresh "
+                         "(RUNS/val/fresh/)")
     a = ap.parse_args(argv)
     budgets = [float(b) for b in a.budgets.split(",")]
     lams = [float(x) for x in a.lams.split(",")]
     seeds = [int(s) for s in a.seeds.split(",")]
-    if a.priors is not None and a.solves is None:
-        ap.error("--priors needs --solves")
+    if (a.priors is not None or a.fresh_priors is not None) and a.solves is None:
+        ap.error("--priors and --fresh-priors need --solves")
     priors = [float(x) for x in a.priors.split(",")] if a.priors is not None else []
+    fresh_priors = [float(x) for x in a.fresh_priors.split(",")] if a.fresh_priors is not None else []
     try:
         heur_val = _stable(all_rows(os.path.join(a.runs, "val", "val_heuristic.jsonl")), "heuristic")
         n = len(heur_val)
@@ -258,6 +307,8 @@ def main(argv=None) -> int:
             lam = _solves_rule(a.runs, lams, seeds, a.solves, heur_val, hh)
             if priors:
                 _prior_rule(a.runs, lam, priors, seeds, a.solves, heur_val, hh)
+            if fresh_priors:
+                _fresh_rule(a.runs, lam, fresh_priors, seeds, a.solves, heur_val, hh)
     except RowsError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2

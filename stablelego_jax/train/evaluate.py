@@ -64,8 +64,8 @@ def evaluate(ckpt: str, split: str = "heldout", heuristic: bool = False, untrain
     """Rows (one per shape and method) for the checkpoint ``ckpt``
     (``refine``: seconds of refinement per shape, ``refine_solves``: exact
     solves per shape, either or both; ``size_prior``: the decoding's beta;
-    ``n_fresh``: the shapes of the split "fresh"; see the module docstring; ``log``: a stream for a line per shape
-    refined)."""
+    ``n_fresh``: the shapes of the split "fresh"; see the module
+    docstring; ``log``: a stream for a line per shape refined)."""
     refining = refine is not None or refine_solves is not None
     params, _, step, _, cfg, _ = load_checkpoint(ckpt)
     shapes = split_shapes(cfg, split, n_fresh)

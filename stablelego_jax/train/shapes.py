@@ -26,7 +26,7 @@ import os
 import numpy as np
 
 __all__ = ["Shape", "KINDS", "FULL_KINDS", "PROCEDURAL", "SPLITS", "procedural_shape", "full_shape", "mesh_shapes",
-           "build_dataset", "procedural_seeds", "fresh_shapes"]
+           "build_dataset", "procedural_seeds", "fresh_shapes", "SEED_RANGE"]
 
 KINDS = ("cantilever", "tee", "bridge", "table", "mushroom", "stairs", "box")
 #: the kinds of :func:`full_shape`: :func:`~stablelego_jax.generate.voxels.random_voxel_shape`'s,
@@ -152,11 +152,9 @@ def build_dataset(n_procedural: int, mesh_dir: str | None, seed: int, heldout_fr
     or "full", :func:`full_shape`, whose empty draws are skipped) plus the
     meshes of ``mesh_dir``, split by object (a seeded permutation; a
     fraction ``heldout_frac`` of each source held out)."""
-    if procedural not in PROCEDURAL:
-        raise ValueError(f"unknown procedural source {procedural!r} (known: {', '.join(PROCEDURAL)})")
+    make = _maker(procedural)
     rng = np.random.default_rng(seed)
     seeds = _draw_seeds(rng, n_procedural)
-    make = procedural_shape if procedural == "small" else full_shape
     procs = [sh for sh in (make(int(s), grid) for s in seeds) if sh.vox.any()]
     meshes, skipped = mesh_shapes(mesh_dir, grid, mesh_extent, mesh_max_cells) if mesh_dir else ([], [])
     train, held = [], []
@@ -166,6 +164,13 @@ def build_dataset(n_procedural: int, mesh_dir: str | None, seed: int, heldout_fr
         held += [group[i] for i in sorted(perm[:k])]
         train += [group[i] for i in sorted(perm[k:])]
     return train, held, skipped
+
+
+def _maker(procedural: str):
+    """The shape function of a procedural source (ValueError if unknown)."""
+    if procedural not in PROCEDURAL:
+        raise ValueError(f"unknown procedural source {procedural!r} (known: {', '.join(PROCEDURAL)})")
+    return procedural_shape if procedural == "small" else full_shape
 
 
 def _draw_seeds(rng: np.random.Generator, n: int) -> np.ndarray:
@@ -182,14 +187,13 @@ def fresh_shapes(n: int, n_procedural: int, seed: int, grid: int = 20, procedura
     """``n`` procedural objects of the recipe of :func:`build_dataset` (same
     ``procedural``, ``grid``) whose seeds are none of its ``n_procedural``
     objects' (so none is in its train, validation or held-out shapes):
-    seeds drawn in a fixed order (seeded by ``seed``), empty draws skipped.
-    In the order of the draw."""
-    if procedural not in PROCEDURAL:
-        raise ValueError(f"unknown procedural source {procedural!r} (known: {', '.join(PROCEDURAL)})")
+    seeds drawn in a fixed order (seeded by ``seed``), empty draws skipped;
+    fewer when the seeds run out. In the order of the draw, so the first k
+    of n are the k of a smaller call."""
+    make = _maker(procedural)
     if n < 0:
         raise ValueError(f"the number of fresh shapes must be >= 0, got {n}")
     used = set(procedural_seeds(n_procedural, seed).tolist())
-    make = procedural_shape if procedural == "small" else full_shape
     out = []
     for s in np.random.default_rng([seed, 3]).permutation(SEED_RANGE).tolist():
         if len(out) == n:
