@@ -398,6 +398,9 @@ def test_evaluate_scores_each_decoding_and_refines_the_filled_one(tmp_path, caps
     assert main(["evaluate", "--checkpoint", ckpt, "--out", out3, "--split", "fresh", "--fresh", "3"]) == 0
     fresh = {r["shape"] for r in map(json.loads, open(out3))}
     assert len(fresh) == 3 and not fresh & set(shapes)
+    # --fresh with another split: an error, nothing written
+    assert main(["evaluate", "--checkpoint", ckpt, "--out", str(tmp_path / "x.jsonl"), "--fresh", "3"]) == 2
+    assert not (tmp_path / "x.jsonl").exists() and "--split fresh" in capsys.readouterr().err
     for bad in ("-1", "nan"):
         with pytest.raises(SystemExit) as exc:
             main(["evaluate", "--checkpoint", ckpt, "--out", str(tmp_path / "x.jsonl"), "--size-prior", bad])

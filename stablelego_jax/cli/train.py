@@ -56,8 +56,8 @@ def add_parsers(sub) -> None:
     e.add_argument("--split", choices=SPLITS, default="heldout",
                    help="the config's held-out, validation or training shapes, or (fresh) procedural objects of "
                         "its recipe that none of them holds")
-    e.add_argument("--fresh", type=int_at_least(1), default=100, metavar="N",
-                   help="the number of shapes of --split fresh (default 100)")
+    e.add_argument("--fresh", type=int_at_least(1), default=None, metavar="N",
+                   help="the number of shapes of --split fresh (default 100; only with it)")
     e.set_defaults(func=cmd_evaluate)
 
 
@@ -69,8 +69,14 @@ def cmd_train(args) -> int:
 
 
 def cmd_evaluate(args) -> int:
+    import sys
+
     from ..train.evaluate import run
 
+    if args.fresh is not None and args.split != "fresh":
+        print(f"stablelego evaluate: error: --fresh is the number of shapes of --split fresh, not of "
+              f"--split {args.split}", file=sys.stderr)
+        return 2
     return run(args.checkpoint, args.out, args.split, args.heuristic, args.untrained, args.refine,
-               args.refine_solves, args.size_prior, args.fresh)
+               args.refine_solves, args.size_prior, 100 if args.fresh is None else args.fresh)
 
