@@ -175,6 +175,11 @@ def _lambda_rule(title: str, by_lam: dict[float, list[float]], seeds, heuristic:
     return lam
 
 
+def _have_heldout(runs: str, lam: float, seeds, name: str) -> bool:
+    """Whether every seed's held-out run ``name`` at ``lam`` is there."""
+    return all(os.path.isfile(os.path.join(runs, f"lam{lam:g}_seed{s}", name)) for s in seeds)
+
+
 def _solves_rule(runs, lams, seeds, n: int, heur_val: dict[str, bool], hh: dict[str, bool]) -> float:
     """Rule 3: lambda chosen on validation with ``n`` exact solves a shape,
     and the held-out result at it (then the other lambdas' where run);
@@ -186,7 +191,7 @@ def _solves_rule(runs, lams, seeds, n: int, heur_val: dict[str, bool], hh: dict[
     name = f"heldout_solves{n}.jsonl"
     print(_heldout(runs, lam, seeds, n, hh, name, " exact solves"))
     for other in lams:
-        if other != lam and all(os.path.isfile(os.path.join(runs, f"lam{other:g}_seed{s}", name)) for s in seeds):
+        if other != lam and _have_heldout(runs, other, seeds, name):
             print("for the record, not chosen: " + _heldout(runs, other, seeds, n, hh, name, " exact solves"))
     return lam
 
@@ -215,7 +220,7 @@ def _prior_rule(runs, lam: float, priors: list[float], seeds, n: int, heur_val: 
     print(f"beta {beta:g}: " + _heldout(runs, lam, seeds, n, hh, prior_heldout_name(beta, n), " exact solves"))
     for other in by_beta:
         name = prior_heldout_name(other, n)
-        if other != beta and all(os.path.isfile(os.path.join(runs, f"lam{lam:g}_seed{s}", name)) for s in seeds):
+        if other != beta and _have_heldout(runs, lam, seeds, name):
             print(f"for the record, not chosen: beta {other:g}: " + _heldout(runs, lam, seeds, n, hh, name, " exact solves"))
 
 
@@ -230,11 +235,6 @@ def _fresh_rule(runs, lam: float, priors: list[float], seeds, n: int, heur_val: 
     if set(heur_fresh) & set(heur_val):
         raise RowsError(f"{first}: fresh shapes among the validation shapes")
     n_all = len(heur_val) + len(heur_fresh)
-
-    def both(beta, s):
-        return (_fraction(prior_val_path(runs, lam, beta, s, n), heur_val) * len(heur_val)
-                + _fraction(fresh.format(s=s, beta=beta), heur_fresh) * len(heur_fresh)) / n_all
-
     hf = sum(heur_fresh.values())
     print(f"fresh ({len(heur_fresh)} shapes): merge heuristic {hf}/{len(heur_fresh)} = {hf / len(heur_fresh):.3f}; "
           f"validation + fresh ({n_all} shapes): {(sum(heur_val.values()) + hf) / n_all:.3f}")
@@ -244,11 +244,13 @@ def _fresh_rule(runs, lam: float, priors: list[float], seeds, n: int, heur_val: 
     by_fresh = {beta: [_fraction(fresh.format(s=s, beta=beta), heur_fresh) for s in seeds] for beta in sorted(priors)}
     print("the fresh shapes alone:")
     _table("beta", by_fresh, seeds, "")
-    by_beta = {beta: [both(beta, s) for s in seeds] for beta in sorted(priors)}
+    by_beta = {beta: [(_fraction(prior_val_path(runs, lam, beta, s, n), heur_val) * len(heur_val)
+                       + f * len(heur_fresh)) / n_all for s, f in zip(seeds, by_fresh[beta])]
+               for beta in sorted(priors)}
     beta = _lambda_rule(f"rule 5, the size prior at lambda {lam:g} with {n} exact solves on validation + fresh "
                         f"({n_all} shapes):", by_beta, seeds, (sum(heur_val.values()) + hf) / n_all, "beta")
     name = prior_heldout_name(beta, n)
-    if all(os.path.isfile(os.path.join(runs, f"lam{lam:g}_seed{s}", name)) for s in seeds):
+    if _have_heldout(runs, lam, seeds, name):
         print(f"beta {beta:g}: " + _heldout(runs, lam, seeds, n, hh, name, " exact solves"))
     else:
         print(f"beta {beta:g}: the held-out runs ({name}) are not all there yet")

@@ -9,7 +9,7 @@ __all__ = ["add_parsers", "cmd_train", "cmd_evaluate"]
 
 from ..train import CONFIGS
 from .common import int_at_least, non_negative_number, positive_seconds
-from ..train.shapes import SPLITS
+from ..train.shapes import FRESH_COUNT, SPLITS
 
 
 def add_parsers(sub) -> None:
@@ -57,7 +57,7 @@ def add_parsers(sub) -> None:
                    help="the config's held-out, validation or training shapes, or (fresh) procedural objects of "
                         "its recipe that none of them holds")
     e.add_argument("--fresh", type=int_at_least(1), default=None, metavar="N",
-                   help="the number of shapes of --split fresh (default 100; only with it)")
+                   help=f"the number of shapes of --split fresh (default {FRESH_COUNT}; only with it)")
     e.set_defaults(func=cmd_evaluate)
 
 
@@ -74,9 +74,9 @@ def cmd_evaluate(args) -> int:
     from ..train.evaluate import run
 
     if args.fresh is not None and args.split != "fresh":
-        print(f"stablelego evaluate: error: --fresh is the number of shapes of --split fresh, not of "
-              f"--split {args.split}", file=sys.stderr)
+        print(f"error: --fresh is the number of shapes of --split fresh, not of --split {args.split}",
+              file=sys.stderr)
         return 2
     return run(args.checkpoint, args.out, args.split, args.heuristic, args.untrained, args.refine,
-               args.refine_solves, args.size_prior, 100 if args.fresh is None else args.fresh)
+               args.refine_solves, args.size_prior, args.fresh)
 

@@ -60,12 +60,13 @@ __all__ = ["evaluate", "refined_rows", "summary", "run"]
 @x64
 def evaluate(ckpt: str, split: str = "heldout", heuristic: bool = False, untrained: bool = False,
              refine: float | None = None, log=None, refine_solves: int | None = None,
-             size_prior: float = 0.0, n_fresh: int = 100) -> list[dict]:
+             size_prior: float = 0.0, n_fresh: int | None = None) -> list[dict]:
     """Rows (one per shape and method) for the checkpoint ``ckpt``
     (``refine``: seconds of refinement per shape, ``refine_solves``: exact
     solves per shape, either or both; ``size_prior``: the decoding's beta;
-    ``n_fresh``: the shapes of the split "fresh"; see the module
-    docstring; ``log``: a stream for a line per shape refined)."""
+    ``n_fresh``: the shapes of the split "fresh" (None: the default); see
+    the module docstring; ``log``: a stream for a line per shape
+    refined)."""
     refining = refine is not None or refine_solves is not None
     params, _, step, _, cfg, _ = load_checkpoint(ckpt)
     shapes = split_shapes(cfg, split, n_fresh)
@@ -144,7 +145,7 @@ def summary(rows: list[dict]) -> dict:
 
 def run(checkpoint: str, out: str, split: str = "heldout", heuristic: bool = False, untrained: bool = False,
         refine: float | None = None, refine_solves: int | None = None, size_prior: float = 0.0,
-        n_fresh: int = 100) -> int:
+        n_fresh: int | None = None) -> int:
     """``stablelego evaluate``: score a checkpoint's decoded layouts with the
     exact solver, write the rows to ``out``; exit status (2: missing or bad
     checkpoint, nothing written)."""

@@ -26,7 +26,7 @@ import os
 import numpy as np
 
 __all__ = ["Shape", "KINDS", "FULL_KINDS", "PROCEDURAL", "SPLITS", "procedural_shape", "full_shape", "mesh_shapes",
-           "build_dataset", "procedural_seeds", "fresh_shapes", "SEED_RANGE"]
+           "build_dataset", "procedural_seeds", "fresh_shapes", "SEED_RANGE", "FRESH_COUNT"]
 
 KINDS = ("cantilever", "tee", "bridge", "table", "mushroom", "stairs", "box")
 #: the kinds of :func:`full_shape`: :func:`~stablelego_jax.generate.voxels.random_voxel_shape`'s,
@@ -39,6 +39,8 @@ PROCEDURAL = ("small", "full")
 SPLITS = ("heldout", "val", "train", "fresh")
 #: procedural objects are drawn from the seeds 0 .. SEED_RANGE - 1
 SEED_RANGE = 10**5
+#: the number of shapes of the split "fresh" unless told
+FRESH_COUNT = 100
 
 
 @dataclasses.dataclass(frozen=True)

@@ -231,15 +231,17 @@ def config_diff(stored: dict, cfg: dict, ignore=()) -> list[str]:
     return sorted(k for k in cfg if k not in skip and stored.get(k, DEFAULTS.get(k)) != cfg[k])
 
 
-def split_shapes(cfg: dict, split: str, n_fresh: int = 100):
+def split_shapes(cfg: dict, split: str, n_fresh: int | None = None):
     """The shapes of one split of :func:`dataset` (``validation=True``): one
     of :data:`~stablelego_jax.train.shapes.SPLITS`; "fresh": ``n_fresh``
-    procedural objects of the config's recipe that none of the others holds
+    (None: :data:`~stablelego_jax.train.shapes.FRESH_COUNT`) procedural
+    objects of the config's recipe that none of the others holds
     (:func:`~stablelego_jax.train.shapes.fresh_shapes`)."""
     if split == "fresh":
-        from .shapes import fresh_shapes
+        from .shapes import FRESH_COUNT, fresh_shapes
 
-        return fresh_shapes(n_fresh, cfg["n_procedural"], cfg["data_seed"], cfg["grid"], cfg["procedural"])
+        return fresh_shapes(FRESH_COUNT if n_fresh is None else n_fresh, cfg["n_procedural"], cfg["data_seed"],
+                            cfg["grid"], cfg["procedural"])
     train, val, held = dataset(cfg, validation=True)
     return {"heldout": held, "val": val, "train": train}[split]
 
