@@ -411,6 +411,50 @@ def test_evaluate_scores_each_decoding_and_refines_the_filled_one(tmp_path, caps
     assert exc.value.code == 2 and not (tmp_path / "x.jsonl").exists()
 
 
+def test_evaluate_writes_the_layouts_it_scored(tmp_path, capsys):
+    """``evaluate --layouts DIR``: each row's layout as StableLego JSON in
+    DIR/METHOD/SHAPE.json, named in the row; read back, it covers the shape's
+    cells (the exact covers exactly) and gets the row's verdict; a DIR that
+    cannot be a folder is refused before anything is evaluated or written."""
+    from stablelego_jax.analysis import analyze_layout
+    from stablelego_jax.formats.reader import load_layout
+    from stablelego_jax.layout import cells_of
+
+    cfg = _cfg(tmp_path, lam=0.0, steps=2, n_procedural=10)
+    T.train(cfg, str(tmp_path / "run"), log=open(os.devnull, "w"))
+    ckpt, out, lay_dir = str(tmp_path / "run" / "checkpoint.npz"), str(tmp_path / "held.jsonl"), tmp_path / "lay"
+    assert main(["evaluate", "--checkpoint", ckpt, "--out", out, "--heuristic", "--refine-solves", "3",
+                 "--layouts", str(lay_dir)]) == 0
+    rows = [json.loads(line) for line in open(out)]
+    vox = {s.name: s.vox for s in T.split_shapes(T.load_checkpoint(ckpt)[4], "heldout")}
+    methods = {"generator", "generator_filled", "generator_refined", "heuristic", "heuristic_refined"}
+    assert {r["method"] for r in rows} == methods
+    written = 0
+    for r in rows:
+        if r["n_bricks"] == 0:  # an empty decoding: no file
+            assert "layout" not in r
+            continue
+        assert r["layout"] == str(lay_dir / r["method"] / (r["shape"] + ".json"))
+        lay = load_layout(r["layout"])
+        assert lay.n == r["n_bricks"]
+        cells, _ = cells_of(lay.pos, lay.size)
+        assert vox[r["shape"]][tuple(cells.T)].all()  # inside the shape, in its voxel grid
+        if r["iou"] == 1.0:
+            assert len(cells) == int(vox[r["shape"]].sum())
+        if r["method"] in ("heuristic", "generator_refined"):
+            assert analyze_layout(lay, solver="exact").stable == r["stable"]
+        written += 1
+    assert written == sum(1 for _ in lay_dir.rglob("*.json")) >= 2 * len(vox)
+    # a file where the folder should be: refused at once, nothing written
+    (tmp_path / "f").write_text("x")
+    bad_out = tmp_path / "bad.jsonl"
+    capsys.readouterr()
+    assert main(["evaluate", "--checkpoint", ckpt, "--out", str(bad_out), "--layouts", str(tmp_path / "f")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("error: ") and str(tmp_path / "f") in err[0]
+    assert not bad_out.exists() and (tmp_path / "f").read_text() == "x"
+
+
 def test_refinement_in_exact_solves_gives_the_same_rows_twice():
     """``evaluate --refine-solves N``: each start refined within N exact
     solves and no clock, so two runs give the same rows, marked with the

@@ -58,6 +58,9 @@ def add_parsers(sub) -> None:
                         "its recipe that none of them holds")
     e.add_argument("--fresh", type=int_at_least(1), default=None, metavar="N",
                    help=f"the number of shapes of --split fresh (default {FRESH_COUNT}; only with it)")
+    e.add_argument("--layouts", default=None, metavar="DIR",
+                   help="also write every layout scored as StableLego JSON (default library ids, the shape's voxel "
+                        "grid) to DIR/METHOD/SHAPE.json; rows name it in 'layout'")
     e.set_defaults(func=cmd_evaluate)
 
 
@@ -78,5 +81,5 @@ def cmd_evaluate(args) -> int:
               file=sys.stderr)
         return 2
     return run(args.checkpoint, args.out, args.split, args.heuristic, args.untrained, args.refine,
-               args.refine_solves, args.size_prior, args.fresh)
+               args.refine_solves, args.size_prior, args.fresh, args.layouts)
 

@@ -2,7 +2,7 @@
 
     stablelego evaluate --checkpoint OUT/checkpoint.npz --out RESULTS.jsonl
         [--heuristic] [--untrained] [--refine SECONDS] [--refine-solves N] [--size-prior BETA]
-        [--split heldout|val|train|fresh [--fresh N]]
+        [--split heldout|val|train|fresh [--fresh N]] [--layouts DIR]
 
 Decodes two layouts per shape: "generator" (greedy, probabilities >= the
 config's ``threshold``, no overlaps, nothing forced in: cells can stay
@@ -34,9 +34,15 @@ rows, and with them the starts of the refinement, then carry
 fresh`` scores N (``--fresh``, default 100) procedural objects of the
 config's recipe that are in none of its splits
 (:func:`stablelego_jax.train.shapes.fresh_shapes`): more shapes for a
-choice made on validation, with no retraining. The summary
+choice made on validation, with no retraining. ``--layouts DIR`` also
+writes every layout a row scored, as StableLego JSON with the default
+library's ids in the shape's voxel grid (``[x, y, z]`` cell indices), to
+``DIR/METHOD/SHAPE.json``, and names it in the row's ``layout``: what the
+generator built, its refinement and the merge, to look at or to learn
+from (an empty decoding has no file). The summary
 (stable fraction, mean IoU per method) goes to stdout, a line per shape
-refined to stderr; the file is written atomically.
+refined to stderr; the results file and the layouts are written together
+at the end, all or nothing.
 """
 from __future__ import annotations
 
@@ -48,25 +54,27 @@ import time
 import numpy as np
 
 from ..blas import one_blas_thread
-from ..files import atomic_write_text
+from ..files import staged_outputs
 from ..generate.voxels import merge_voxels
+from ..layout import LayoutError
 from ..runtime import x64
 from .train import (Arrays, decoded_layouts, initial_params, load_checkpoint, make_fns, score_decoded, score_layout,
                     split_shapes)
 
-__all__ = ["evaluate", "refined_rows", "summary", "run"]
+__all__ = ["evaluate", "refined_rows", "write_results", "summary", "run"]
 
 
 @x64
 def evaluate(ckpt: str, split: str = "heldout", heuristic: bool = False, untrained: bool = False,
              refine: float | None = None, log=None, refine_solves: int | None = None,
-             size_prior: float = 0.0, n_fresh: int | None = None) -> list[dict]:
+             size_prior: float = 0.0, n_fresh: int | None = None, layouts: dict | None = None) -> list[dict]:
     """Rows (one per shape and method) for the checkpoint ``ckpt``
     (``refine``: seconds of refinement per shape, ``refine_solves``: exact
     solves per shape, either or both; ``size_prior``: the decoding's beta;
     ``n_fresh``: the shapes of the split "fresh" (None: the default); see
     the module docstring; ``log``: a stream for a line per shape
-    refined)."""
+    refined; ``layouts``: a dict to fill with {(method, shape name):
+    Layout} for every row with a layout, in the shape's voxel grid)."""
     refining = refine is not None or refine_solves is not None
     params, _, step, _, cfg, _ = load_checkpoint(ckpt)
     shapes = split_shapes(cfg, split, n_fresh)
@@ -84,29 +92,35 @@ def evaluate(ckpt: str, split: str = "heldout", heuristic: bool = False, untrain
                 scored = score_decoded(decoded)
             if method == "generator_filled":
                 filled = [lay for lay, _ in decoded]  # the starts of --refine
-            for s, (stable, iou, nb) in zip(shapes, scored):
+            for s, (lay, _), (stable, iou, nb) in zip(shapes, decoded, scored):
+                if layouts is not None and lay is not None:
+                    layouts[method, s.name] = lay
                 rows.append({"shape": s.name, "kind": s.kind, "method": method, "lam": cfg["lam"],
                              "seed": cfg["seed"], "step": st, **prior, "stable": stable, "iou": round(iou, 6),
                              "n_bricks": nb, "n_cells": int(s.vox.sum())})
     if refining:
         rows += refined_rows("generator_refined", shapes, filled, refine, log,
-                             {"lam": cfg["lam"], "seed": cfg["seed"], "step": step, **prior}, refine_solves)
+                             {"lam": cfg["lam"], "seed": cfg["seed"], "step": step, **prior}, refine_solves, layouts)
     if heuristic:
         merged = [merge_voxels(s.vox, source=s.name) for s in shapes]
         for s, lay in zip(shapes, merged):
+            if layouts is not None:
+                layouts["heuristic", s.name] = lay
             rows.append({"shape": s.name, "kind": s.kind, "method": "heuristic", "stable": score_layout(lay),
                          "iou": 1.0, "n_bricks": lay.n, "n_cells": int(s.vox.sum())})
         if refining:  # the control: the same refinement started from the merge
-            rows += refined_rows("heuristic_refined", shapes, merged, refine, log, {}, refine_solves)
+            rows += refined_rows("heuristic_refined", shapes, merged, refine, log, {}, refine_solves, layouts)
     return rows
 
 
-def refined_rows(method, shapes, starts, seconds, log=None, extra=None, solves: int | None = None) -> list[dict]:
+def refined_rows(method, shapes, starts, seconds, log=None, extra=None, solves: int | None = None,
+                 layouts: dict | None = None) -> list[dict]:
     """Rows ``method``: each start cover (a Layout or None) of ``shapes``
     refined by stabilize (no heuristic seeds, no gradient move, at most
     ``seconds`` (None: no limit) and ``solves`` exact solves (None: no
     limit) a shape); ``extra``: fields added to every row, and
-    ``budget_solves`` when ``solves`` is given."""
+    ``budget_solves`` when ``solves`` is given; ``layouts``: as
+    :func:`evaluate`'s, filled with each refined cover."""
     from ..generate.stabilize import StabilizeOptions, stabilize
 
     opts = StabilizeOptions(seeds=1, gradient=False, time_s=float("inf") if seconds is None else float(seconds),
@@ -125,12 +139,47 @@ def refined_rows(method, shapes, starts, seconds, log=None, extra=None, solves: 
         else:
             row.update(stable=bool(r.stable), iou=1.0, n_bricks=r.layout.n, started_stable=r.method == "start",
                        bricks_changed=r.bricks_changed, exact_calls=r.exact_calls, refine_s=round(r.time_s, 2))
+            if layouts is not None:
+                layouts[method, s.name] = r.layout
         rows.append(row)
         if log is not None:
             print(f"{method} [{i + 1}/{len(shapes)}] {s.name}: {'stable' if row['stable'] else 'not stable'}"
                   + (f" ({row['refine_s']} s, {row['exact_calls']} exact solves)" if "refine_s" in row else ""),
                   file=log, flush=True)
     return rows
+
+
+def write_results(out: str, rows: list[dict], layouts_dir: str | None = None, layouts: dict | None = None) -> None:
+    """Write ``rows`` to ``out`` (JSON lines) and, with ``layouts_dir``, each
+    layout of ``layouts`` ({(method, shape): Layout}) to
+    ``layouts_dir/METHOD/SHAPE.json``, its path in the row's ``layout``:
+    all files or none (:func:`~stablelego_jax.files.staged_outputs`)."""
+    from ..formats.reader import write_layout
+
+    files = {}
+    if layouts_dir:
+        for r in rows:
+            if (r["method"], r["shape"]) in (layouts or {}):
+                r["layout"] = files[r["method"], r["shape"]] = os.path.join(layouts_dir, r["method"],
+                                                                          r["shape"] + ".json")
+    for p in [out, *files.values()]:
+        os.makedirs(os.path.dirname(os.path.abspath(p)), exist_ok=True)
+    with staged_outputs([out, *files.values()]) as stage:
+        for key, path in files.items():
+            write_layout(layouts[key], stage(path), fmt="json")
+        with open(stage(out), "w", encoding="utf-8") as fh:
+            fh.write("".join(json.dumps(r) + "\n" for r in rows))
+
+
+def _can_make_folder(path: str) -> bool:
+    """Whether ``path`` is a writable folder, or one can be made there (its
+    nearest existing ancestor is a writable folder)."""
+    p = os.path.abspath(path)
+    if os.path.lexists(p):
+        return os.path.isdir(p) and os.access(p, os.W_OK | os.X_OK)
+    while not os.path.lexists(p):
+        p = os.path.dirname(p)
+    return os.path.isdir(p) and os.access(p, os.W_OK | os.X_OK)
 
 
 def summary(rows: list[dict]) -> dict:
@@ -145,23 +194,33 @@ def summary(rows: list[dict]) -> dict:
 
 def run(checkpoint: str, out: str, split: str = "heldout", heuristic: bool = False, untrained: bool = False,
         refine: float | None = None, refine_solves: int | None = None, size_prior: float = 0.0,
-        n_fresh: int | None = None) -> int:
+        n_fresh: int | None = None, layouts_dir: str | None = None) -> int:
     """``stablelego evaluate``: score a checkpoint's decoded layouts with the
-    exact solver, write the rows to ``out``; exit status (2: missing or bad
-    checkpoint, nothing written)."""
+    exact solver, write the rows to ``out`` (and with ``layouts_dir`` the
+    layouts, see the module docstring); exit status (2: missing or bad
+    checkpoint, or an output that cannot be written; nothing written)."""
     if not os.path.isfile(checkpoint):
         print(f"error: {checkpoint}: checkpoint not found", file=sys.stderr)
         return 2
+    if layouts_dir and not _can_make_folder(layouts_dir):
+        print(f"error: {layouts_dir}: cannot write layouts there (not a folder, or not writable)", file=sys.stderr)
+        return 2
     t0 = time.perf_counter()
+    kept: dict | None = {} if layouts_dir else None
     try:
         rows = evaluate(checkpoint, split, heuristic, untrained, refine, log=sys.stderr, refine_solves=refine_solves,
-                        size_prior=size_prior, n_fresh=n_fresh)
+                        size_prior=size_prior, n_fresh=n_fresh, layouts=kept)
     except (OSError, ValueError, KeyError) as exc:
         print(f"error: {checkpoint}: cannot evaluate: {exc}", file=sys.stderr)
         return 2
-    d = os.path.dirname(os.path.abspath(out))
-    os.makedirs(d, exist_ok=True)
-    atomic_write_text(out, "".join(json.dumps(r) + "\n" for r in rows))
+    try:
+        write_results(out, rows, layouts_dir, kept)
+    except LayoutError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    except OSError as exc:
+        print(f"error: {exc.filename or out}: cannot write: {exc.strerror or exc}", file=sys.stderr)
+        return 2
     for m, s in summary(rows).items():
         print(f"{m}: {s['n']} {split} shapes, stable {s['stable_fraction']:.3f}, mean IoU {s['mean_iou']:.4f}")
     print(f"wrote {out} ({time.perf_counter() - t0:.1f} s)", file=sys.stderr)
