@@ -453,6 +453,31 @@ def test_evaluate_writes_the_layouts_it_scored(tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("error: ") and str(tmp_path / "f") in err[0]
     assert not bad_out.exists() and (tmp_path / "f").read_text() == "x"
+    # results that cannot be written (in a folder under a file; a folder): refused at once too
+    for bad in (tmp_path / "f" / "held.jsonl", lay_dir):
+        assert main(["evaluate", "--checkpoint", ckpt, "--out", str(bad)]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and err[0].startswith(f"error: {bad}: cannot write")
+    assert (tmp_path / "f").read_text() == "x"
+
+
+def test_write_results_leaves_no_folder_when_it_fails(tmp_path):
+    """``write_results``: when any file cannot be written, nothing is, not
+    even the layout folders it made for them."""
+    from stablelego_jax.layout import LayoutError, brick_layout
+    from stablelego_jax.train.evaluate import write_results
+
+    lay = brick_layout(np.zeros((1, 3), int), np.ones((1, 2), int))
+    rows = [{"method": "heuristic", "shape": "s"}]
+    (tmp_path / "res").mkdir()  # the results path is a folder
+    with pytest.raises(LayoutError):
+        write_results(str(tmp_path / "res"), rows, str(tmp_path / "lay" / "deep"), {("heuristic", "s"): lay})
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["res"] and not any((tmp_path / "res").iterdir())
+    # and when they can: the rows and the layout, in the folders it made
+    write_results(str(tmp_path / "out" / "r.jsonl"), rows, str(tmp_path / "lay" / "deep"), {("heuristic", "s"): lay})
+    assert json.loads((tmp_path / "out" / "r.jsonl").read_text())["layout"] == str(
+        tmp_path / "lay" / "deep" / "heuristic" / "s.json")
+    assert (tmp_path / "lay" / "deep" / "heuristic" / "s.json").is_file()
 
 
 def test_refinement_in_exact_solves_gives_the_same_rows_twice():

@@ -163,13 +163,35 @@ def write_results(out: str, rows: list[dict], layouts_dir: str | None = None, la
             if (r["method"], r["shape"]) in (layouts or {}):
                 r["layout"] = files[r["method"], r["shape"]] = os.path.join(layouts_dir, r["method"],
                                                                           r["shape"] + ".json")
-    for d in {os.path.dirname(os.path.abspath(p)) for p in [out, *files.values()]}:
-        os.makedirs(d, exist_ok=True)
-    with staged_outputs([out, *files.values()]) as stage:
-        for key, path in files.items():
-            write_layout(layouts[key], stage(path), fmt="json")
-        with open(stage(out), "w", encoding="utf-8") as fh:
-            fh.write("".join(json.dumps(r) + "\n" for r in rows))
+    made = _make_folders(sorted({os.path.dirname(os.path.abspath(p)) for p in [out, *files.values()]}))
+    try:
+        with staged_outputs([out, *files.values()]) as stage:
+            for key, path in files.items():
+                write_layout(layouts[key], stage(path), fmt="json")
+            with open(stage(out), "w", encoding="utf-8") as fh:
+                fh.write("".join(json.dumps(r) + "\n" for r in rows))
+    except BaseException:
+        for d in reversed(made):  # nothing half-written: not even the empty folders
+            try:
+                os.rmdir(d)
+            except OSError:
+                pass
+        raise
+
+
+def _make_folders(dirs) -> list[str]:
+    """Make each folder of ``dirs`` (absolute paths) with its missing
+    parents; the folders made, each after its parent."""
+    made = []
+    for d in dirs:
+        missing = []
+        while not os.path.lexists(d):
+            missing.append(d)
+            d = os.path.dirname(d)
+        for m in reversed(missing):
+            os.mkdir(m)
+            made.append(m)
+    return made
 
 
 def _can_make_folder(path: str) -> bool:
@@ -200,6 +222,10 @@ def run(checkpoint: str, out: str, split: str = "heldout", heuristic: bool = Fal
     checkpoint, or an output that cannot be written; nothing written)."""
     if not os.path.isfile(checkpoint):
         print(f"error: {checkpoint}: checkpoint not found", file=sys.stderr)
+        return 2
+    if os.path.isdir(out) or not _can_make_folder(os.path.dirname(os.path.abspath(out))):
+        print(f"error: {out}: cannot write the results there (a folder, or in a folder that cannot be made)",
+              file=sys.stderr)
         return 2
     if layouts_dir and not _can_make_folder(layouts_dir):
         print(f"error: {layouts_dir}: cannot write layouts there (not a folder, or not writable)", file=sys.stderr)
