@@ -277,9 +277,12 @@ def _score(a: Analysis) -> float:
     return float(a.scores[a.weakest])
 
 
-def _solve(layouts: list, solver: str, params: Params) -> list:
+def _solve(layouts: list, solver: str, params: Params, jobs: int = 1) -> list:
+    """One Analysis per layout (``jobs``: worker processes of the exact
+    solver, :func:`~stablelego_jax.batch.iter_analyses`; the JAX solver's
+    batched calls run in this process)."""
     with one_blas_thread():  # JAX's CPU LAPACK goes through OpenBLAS (see blas.py)
-        res = analyze_many(layouts, solver, params=params)
+        res = analyze_many(layouts, solver, params=params, jobs=jobs if solver == "exact" else 1, jax_jobs=1)
     for r in res:
         if isinstance(r, Exception):
             raise r
@@ -287,15 +290,20 @@ def _solve(layouts: list, solver: str, params: Params) -> list:
 
 
 def analyze_sequence(layout: Layout | Scene, order: BuildOrder | None = None, press: float | None = None,
-                     solver: str = "jax", params: Params = Params(), find_support: bool = True) -> SequenceResult:
+                     solver: str = "jax", params: Params = Params(), find_support: bool = True,
+                     jobs: int = 1) -> SequenceResult:
     """Score every step of ``order`` (default: :func:`layer_order`).
 
     One batched call scores every prefix (and, with ``press`` N, every
     pressed prefix); with ``find_support``, one more call scores every
     support candidate (:func:`support_candidates`) of the steps that stand
-    but fall under the press."""
+    but fall under the press. ``jobs`` > 1 (the exact solver, from
+    ``batch.POOL_MIN`` layouts a call): that many spawned worker processes,
+    the same answers as one; a script that passes it must keep its own work
+    under ``if __name__ == "__main__":`` (spawned workers import it)."""
     order = order or layer_order(layout)
     check_order(layout, order)
+    n_jobs = jobs
     t0 = time.perf_counter()
     prefixes = prefix_layouts(layout, order)
     jobs, pressed = list(prefixes), []
@@ -305,7 +313,7 @@ def analyze_sequence(layout: Layout | Scene, order: BuildOrder | None = None, pr
             pressed.append((len(jobs) if p is not None else None, mode))
             if p is not None:
                 jobs.append(p)
-    res = _solve(jobs, solver, params)
+    res = _solve(jobs, solver, params, n_jobs)
     n_solved = len(jobs)
     steps = []
     for s, (lay, k) in enumerate(zip(prefixes, order.keys)):
@@ -327,7 +335,7 @@ def analyze_sequence(layout: Layout | Scene, order: BuildOrder | None = None, pr
                 for cell, lay in support_candidates(st.pressed.layout, st.key):
                     cands.append((st, cell, lay))
         if cands:
-            sres = _solve([c[2] for c in cands], solver, params)
+            sres = _solve([c[2] for c in cands], solver, params, n_jobs)
             n_solved += len(cands)
             for (st, cell, _), a in zip(cands, sres):
                 st.support_tried += 1

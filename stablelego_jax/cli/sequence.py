@@ -37,7 +37,7 @@ def add_parser(sub) -> None:
     s.add_argument("--no-support", action="store_true", help="with --press: do not search for support locations")
     s.add_argument("--plan", action="store_true", help="look for a build order in which every step stands")
     s.add_argument("--solver", type=solver_choice, choices=["jax", "exact"], default="jax",
-                   help="jax (batched interior point, default) or exact (HiGHS, one step at a time)")
+                   help="jax (batched interior point, default) or exact (HiGHS, one step at a time on each core)")
     s.add_argument("--library", help="brick library JSON (default: the StableLego library)")
     s.add_argument("--skip-unsupported", action="store_true",
                    help="LDraw: sequence the parts that can be modelled, with a warning naming the others")
@@ -146,6 +146,7 @@ def _frames(res):
 def cmd_sequence(args) -> int:
     from ..files import atomic_write_text
     from ..layout import LayoutError
+    from ..batch import cpu_cores
     from ..sequence import analyze_sequence, plan_order
 
     path = args.layout
@@ -155,7 +156,7 @@ def cmd_sequence(args) -> int:
         if args.plan:
             order, found = plan_order(layout, press=args.press, solver=args.solver, base=order)
         res = analyze_sequence(layout, order, press=args.press, solver=args.solver,
-                               find_support=not args.no_support)
+                               find_support=not args.no_support, jobs=cpu_cores())
         if args.html:
             from ..render_html import html_frames
 
