@@ -23,7 +23,8 @@ filled greedy decoding (:func:`stablelego_jax.train.net.decode`), feeding
 the joints of the bricks just decoded to the next layer. Every cover is
 judged by the exact solver (HiGHS), and so is the merge's. Prints one line
 per shape (name, stands, bricks, merge stands, merge bricks) and the totals.
-No stability term and no refinement; nothing is written. Results:
+No stability term. ``--refine-solves N``: then each cover is refined as
+``stablelego evaluate --refine-solves N`` refines a decoding. Nothing is written. Results:
 BENCHMARKS.md, issue 19 item 3, session 67.
 """
 import argparse
@@ -45,6 +46,8 @@ ap.add_argument("--width", type=int, default=32)
 ap.add_argument("--seed", type=int, default=0)
 ap.add_argument("--config-of", default="benchmarks/results/train_full_s56/lam0_seed0/checkpoint.npz",
                 help="the checkpoint whose config gives the shapes and their split")
+ap.add_argument("--refine-solves", type=int, default=0, metavar="N",
+                help="then refine each decoded cover as evaluate --refine-solves N does, and print what stands")
 args = ap.parse_args()
 steps, width, seed = args.steps, args.width, args.seed
 cfg = T.load_checkpoint(args.config_of)[4]
@@ -163,13 +166,22 @@ def decode_shape(vox):
             pos.append((px, py, z)); size.append((sx, sy))
     return np.array(pos), np.array(size)
 
-res = []
+res, lays = [], []
 for i, name in enumerate(vaa.names):
     vox = vaa.target[i]
     pos, size = decode_shape(vox)
     lay = T.layout_of(pos + vaa.offset[i], size)
+    lays.append(lay)
     ok = T.score_layout(lay)
     m = merge_voxels(vox); mok = T.score_layout(m)
     res.append((name, ok, len(pos), mok, m.n))
     print(res[-1], flush=True)
 print("AR stable", sum(r[1] for r in res), "merge", sum(r[3] for r in res), "of", len(res), "bricks", sum(r[2] for r in res), sum(r[4] for r in res))
+if args.refine_solves:
+    import sys
+
+    from stablelego_jax.train.evaluate import refined_rows
+
+    t0 = time.time()
+    rows = refined_rows("layerwise_refined", val, lays, None, sys.stderr, {}, args.refine_solves)
+    print("refined stable", sum(r["stable"] for r in rows), "of", len(rows), round(time.time() - t0, 1), flush=True)
