@@ -51,7 +51,7 @@ ap.add_argument("--refine-solves", type=int, default=0, metavar="N",
 args = ap.parse_args()
 steps, width, seed = args.steps, args.width, args.seed
 cfg = T.load_checkpoint(args.config_of)[4]
-tr_shapes, val, held = T.dataset(cfg, validation=True)
+tr_shapes, val, _ = T.dataset(cfg, validation=True)
 K = len(net.TYPES)
 
 def layer_features(vox, ids, z):
@@ -93,7 +93,7 @@ def cover_ids(vox, lay):
 
 def samples(shapes):
     arr = T.Arrays(shapes, cfg["crop"], cfg["grid"])
-    xs, vs, ts, occs = [], [], [], []
+    xs, vs, ts = [], [], []
     for i, vox in enumerate(arr.target):
         lay = merge_voxels(vox)
         ids, tgt = cover_ids(vox, lay)
@@ -101,12 +101,12 @@ def samples(shapes):
         for z in range(vox.shape[2]):
             if not vox[:, :, z].any():
                 continue
-            xs.append(layer_features(vox, ids, z)); vs.append(valid[:, :, z]); ts.append(tgt[:, :, z]); occs.append(vox[:, :, z])
-    return arr, np.stack(xs), np.stack(vs), np.stack(ts), np.stack(occs)
+            xs.append(layer_features(vox, ids, z)); vs.append(valid[:, :, z]); ts.append(tgt[:, :, z])
+    return arr, np.stack(xs), np.stack(vs), np.stack(ts)
 
 t0 = time.time()
-tra, trx, trv, trt, tro = samples(tr_shapes)
-vaa, vax, vav, vat, vao = samples(val)
+_, trx, trv, trt = samples(tr_shapes)
+vaa, vax, vav, vat = samples(val)
 print("samples", trx.shape, vax.shape, round(time.time() - t0, 1), flush=True)
 DIL = (1, 2, 4, 8, 1)
 

@@ -282,7 +282,7 @@ def _solve(layouts: list, solver: str, params: Params, jobs: int = 1) -> list:
     solver, :func:`~stablelego_jax.batch.iter_analyses`; the JAX solver's
     batched calls run in this process)."""
     with one_blas_thread():  # JAX's CPU LAPACK goes through OpenBLAS (see blas.py)
-        res = analyze_many(layouts, solver, params=params, jobs=jobs if solver == "exact" else 1, jax_jobs=1)
+        res = analyze_many(layouts, solver, params=params, jobs=jobs, jax_jobs=1)
     for r in res:
         if isinstance(r, Exception):
             raise r
@@ -303,18 +303,17 @@ def analyze_sequence(layout: Layout | Scene, order: BuildOrder | None = None, pr
     under ``if __name__ == "__main__":`` (spawned workers import it)."""
     order = order or layer_order(layout)
     check_order(layout, order)
-    n_jobs = jobs
     t0 = time.perf_counter()
     prefixes = prefix_layouts(layout, order)
-    jobs, pressed = list(prefixes), []
+    todo, pressed = list(prefixes), []
     if press is not None:
         for lay, k in zip(prefixes, order.keys):
             p, mode = press_layout(lay, k, press, order, params)
-            pressed.append((len(jobs) if p is not None else None, mode))
+            pressed.append((len(todo) if p is not None else None, mode))
             if p is not None:
-                jobs.append(p)
-    res = _solve(jobs, solver, params, n_jobs)
-    n_solved = len(jobs)
+                todo.append(p)
+    res = _solve(todo, solver, params, jobs)
+    n_solved = len(todo)
     steps = []
     for s, (lay, k) in enumerate(zip(prefixes, order.keys)):
         a = res[s]
@@ -335,7 +334,7 @@ def analyze_sequence(layout: Layout | Scene, order: BuildOrder | None = None, pr
                 for cell, lay in support_candidates(st.pressed.layout, st.key):
                     cands.append((st, cell, lay))
         if cands:
-            sres = _solve([c[2] for c in cands], solver, params, n_jobs)
+            sres = _solve([c[2] for c in cands], solver, params, jobs)
             n_solved += len(cands)
             for (st, cell, _), a in zip(cands, sres):
                 st.support_tried += 1

@@ -144,9 +144,9 @@ def _frames(res):
 
 
 def cmd_sequence(args) -> int:
+    from ..batch import cpu_cores
     from ..files import atomic_write_text
     from ..layout import LayoutError
-    from ..batch import cpu_cores
     from ..sequence import analyze_sequence, plan_order
 
     path = args.layout
