@@ -59,8 +59,8 @@ from ..files import staged_outputs
 from ..generate.voxels import merge_voxels
 from ..layout import LayoutError
 from ..runtime import x64
-from .train import (Arrays, decoded_layouts, initial_params, load_checkpoint, make_fns, score_decoded, score_layout,
-                    split_shapes)
+from .train import (decoded_layouts, initial_params, load_checkpoint, make_fns, score_decoded, score_layout,
+                    shape_arrays, split_shapes)
 
 __all__ = ["evaluate", "refined_rows", "write_results", "summary", "run"]
 
@@ -79,7 +79,7 @@ def evaluate(ckpt: str, split: str = "heldout", heuristic: bool = False, untrain
     refining = refine is not None or refine_solves is not None
     params, _, step, _, cfg, _ = load_checkpoint(ckpt)
     shapes = split_shapes(cfg, split, n_fresh)
-    arr = Arrays(shapes, cfg["crop"], cfg["grid"])
+    arr = shape_arrays(shapes, cfg)
     probs_fn = make_fns(cfg)[0]
     prior = {"size_prior": float(size_prior)} if size_prior else {}
     nets = [("generator", params, step)]

@@ -118,6 +118,8 @@ DEFAULTS = {
     "solve_jobs": 0,
     "absent_below": 0.0,
     "solver_iters": 30,
+    "net": "volume",
+    "imitate": 0.0,
 }
 
 #: Config keys that change how the loss is computed, not its value: a
@@ -129,6 +131,11 @@ HOW_KEYS = ("stability_solves", "solve_jobs")
 STABILITY_KEYS = ("absent_below", "solver_iters", "temperature", "competitors", "random_competitors",
                   "random_pool", "share_floor", "share_power", "share_scope", "subset_base", "n_pad", "m_pad", "p_pad",
                   "c_pad", "chunk_pad")
+
+
+#: The generators (config key ``net``): "volume", the 3D conv net of
+#: :mod:`.net`; "layers", the layer-by-layer net of :mod:`.layers`.
+NETS = ("volume", "layers")
 
 
 class ConfigError(ValueError):
@@ -177,11 +184,14 @@ def load_config(path: str, **overrides) -> dict:
                        ("procedural", PROCEDURAL),
                        ("random_pool", ("span", "valid")),
                         ("lr_schedule", ("constant", "cosine")),
-                       ("stability_solves", ("each", "batch"))):
+                       ("stability_solves", ("each", "batch")),
+                       ("net", NETS)):
         if cfg[k] not in allowed:
             raise ConfigError(f"{path}: config key {k!r} must be one of {', '.join(allowed)}, got {cfg[k]!r}")
     if cfg["lam"] < 0 or not 0 < cfg["threshold"] <= 1:
         raise ConfigError(f"{path}: need lam >= 0 and 0 < threshold <= 1")
+    if cfg["imitate"] < 0:
+        raise ConfigError(f"{path}: need imitate >= 0, got {cfg['imitate']}")
     if not 0 < cfg["share_power"] <= 1:
         raise ConfigError(f"{path}: need 0 < share_power <= 1, got {cfg['share_power']}")
     if not 0 <= cfg["absent_below"] < 1:
@@ -247,12 +257,16 @@ def split_shapes(cfg: dict, split: str, n_fresh: int | None = None):
 
 
 class Arrays:
-    """Per-shape network inputs on the crop around each shape (see
-    :func:`stablelego_jax.train.net.apply`): features (S, cx, cy, cz, 4) float32, valid
-    (S, cx, cy, cz, K) bool, target (S, cx, cy, cz) bool, offset (S, 3) of
-    the crop in the (G, G, G) grid."""
+    """Per-shape network inputs on the crop around each shape: features
+    x (S, cx, cy, cz, C) float32 (:func:`stablelego_jax.train.net.features`,
+    or with ``net`` "layers" :func:`stablelego_jax.train.layers.features` with
+    the merge's cover as the layer below), valid (S, cx, cy, cz, K) bool,
+    target (S, cx, cy, cz) bool, offset (S, 3) of the crop in the
+    (G, G, G) grid; with ``net`` "layers" or ``teach``, teacher
+    (S, cx, cy, cz, K) bool: the merge's placements (else None)."""
 
-    def __init__(self, shapes, crop_size, grid=20):
+    def __init__(self, shapes, crop_size, grid=20, net="volume", teach=False):
+        from . import layers
         from .net import crop, features, spanning_placements, valid_placements
 
         crops = []
@@ -262,11 +276,31 @@ class Arrays:
             except ValueError as exc:
                 raise ConfigError(f"shape {s.name}: {exc}") from None
         self.names = [s.name for s in shapes]
+        self.grid = grid
         self.target = np.stack([c[0] for c in crops]) if crops else np.zeros((0, *crop_size), bool)
         self.offset = np.stack([c[1] for c in crops]) if crops else np.zeros((0, 3), np.int64)
-        self.x = np.stack([features(t, grid) for t in self.target]) if crops else None
         self.valid = np.stack([valid_placements(t) for t in self.target]) if crops else None
         self.span = np.stack([spanning_placements(t) for t in self.target]) if crops else None
+        self.teacher = None
+        if net == "layers" or teach:
+            taught = [layers.teacher(t) for t in self.target]
+            self.teacher = np.stack([t[1] for t in taught]) if crops else None
+        if not crops:
+            self.x = None
+        elif net == "layers":
+            self.x = np.stack([layers.features(t, ids, grid) for t, (ids, _) in zip(self.target, taught)])
+        else:
+            self.x = np.stack([features(t, grid) for t in self.target])
+
+    def goal(self, b):
+        """The loss's target of shapes ``b``: target[b], or with a teacher the pair
+        (target[b], teacher[b])."""
+        return self.target[b] if self.teacher is None else (self.target[b], self.teacher[b])
+
+
+def shape_arrays(shapes, cfg: dict) -> Arrays:
+    """:class:`Arrays` of ``shapes`` for ``cfg``'s crop, grid, net and imitation."""
+    return Arrays(shapes, cfg["crop"], cfg["grid"], cfg["net"], cfg["imitate"] > 0)
 
 
 # --------------------------------------------------------------------------
@@ -392,7 +426,7 @@ def draw_batch(arrays: Arrays, cfg: dict, rng: np.random.Generator, params=None,
     (:func:`batch_subsets`, which draws from ``rng`` too), else both None.
     Benchmarks replay a checkpoint's next batches with it."""
     b = rng.choice(len(arrays.names), size=cfg["batch"], replace=False)
-    x, valid, target = arrays.x[b], arrays.valid[b], arrays.target[b]
+    x, valid, target = arrays.x[b], arrays.valid[b], arrays.goal(b)
     if probs_fn is None:
         return x, valid, target, None, None
     p = np.asarray(probs_fn(params, x, valid))
@@ -410,7 +444,7 @@ def bin_weight(cfg: dict, step: int) -> float:
 # everything else, grad_floor and brick_weight included, enters as a value,
 # so a sweep over those reuses one compilation
 _GRAPH_KEYS = ("dilations", "logit_bound", "temperature", "under_weight", "share_scope", "share_floor",
-               "share_power", "absent_below", "solver_iters")
+               "share_power", "absent_below", "solver_iters", "net", "imitate")
 _OPT_KEYS = ("lr", "lr_schedule", "steps", "lr_final_frac", "clip")
 
 
@@ -516,34 +550,41 @@ def _model_fns(key: str):
     import jax
     import jax.numpy as jnp
 
-    _optax()  # ConfigError before anything is compiled or written
+    optax = _optax()  # ConfigError before anything is compiled or written
     from ..loss import soft_report
     from . import net
 
     dil = tuple(cfg["dilations"])
     opts = loss_options(cfg)
+    model = generator(cfg)
 
     @jax.jit
     def probs_fn(params, x, valid):
-        return net.probabilities(params, x, valid, dil, cfg["logit_bound"])
+        return model.probabilities(params, x, valid, dil, cfg["logit_bound"])
 
     def forward(params, floor, x, valid):
         """(p, p_g, coverage) of a batch: the placements' probabilities, the
         same values with d p / d logit = p (1 - p) + grad_floor (a saturated
         placement can still be moved), and the cells' coverage by p_g."""
-        logits = net.logits(params, x, dil, cfg["logit_bound"])
-        p = jnp.where(valid, jax.nn.sigmoid(logits), 0.0)  # = net.probabilities, sharing the logits
+        logits = model.logits(params, x, dil, cfg["logit_bound"])
+        p = jnp.where(valid, jax.nn.sigmoid(logits), 0.0)  # = model.probabilities, sharing the logits
         p_g = p + floor * jnp.where(valid, logits - jax.lax.stop_gradient(logits), 0.0)
-        return p, p_g, net.coverage(p_g)
+        return p, p_g, net.coverage(p_g), logits
 
     def shape_terms(params, floor, brick_weight, x, valid, target):
-        """(fidelity, binarize, p_g, coverage) of a batch."""
-        p, p_g, cov = forward(params, floor, x, valid)
+        """(fidelity, binarize, p_g, coverage) of a batch; ``target``: the
+        shapes (B, X, Y, Z) bool, or with ``imitate`` > 0 the pair (shapes,
+        the teacher's placements (B, X, Y, Z, K) bool)."""
+        target, taught = target if cfg["imitate"] > 0 else (target, None)
+        p, p_g, cov, lg = forward(params, floor, x, valid)
         B = p.shape[0]
         err = jnp.where(cov < 1.0, cfg["under_weight"], 1.0) * (cov - 1.0) ** 2
         fid = jnp.where(target, err, 0.0).reshape(B, -1).sum(1).mean()
         # economy: each placement's probability costs brick_weight
         fid = fid + brick_weight * p_g.reshape(B, -1).sum(1).mean()
+        if cfg["imitate"] > 0:  # cross-entropy against the teacher's placements, over the valid ones
+            bce = jnp.where(valid, optax.sigmoid_binary_cross_entropy(lg, taught.astype(lg.dtype)), 0.0)
+            fid = fid + cfg["imitate"] * bce.reshape(B, -1).sum(1).mean()
         binar = (p * (1.0 - p)).reshape(B, -1).sum(1).mean()
         return fid, binar, p_g, cov
 
@@ -583,7 +624,7 @@ def _model_fns(key: str):
 
     @jax.jit
     def weights_fn(params, floor, x, valid, fi, mask, inc):
-        _, p_g, cov = forward(params, floor, x, valid)
+        _, p_g, cov, _ = forward(params, floor, x, valid)
         return subset_weights(p_g, cov, fi, mask, inc)
 
     if cfg["solves"] == "batch" or not cfg["stability"]:
@@ -723,10 +764,16 @@ def initial_params(cfg: dict, seed: int | None = None):
     ``seed`` unless given)."""
     import jax
 
-    from . import net
-
     key = jax.random.PRNGKey(cfg["seed"] if seed is None else seed)
-    return net.init_params(key, cfg["width"], tuple(cfg["dilations"]), cfg["out_bias"])
+    return generator(cfg).init_params(key, cfg["width"], tuple(cfg["dilations"]), cfg["out_bias"])
+
+
+def generator(cfg: dict):
+    """The module of ``cfg``'s network: :mod:`.net` ("volume") or :mod:`.layers`
+    ("layers"); both give ``init_params``, ``logits`` and ``probabilities``."""
+    from . import layers, net
+
+    return layers if cfg["net"] == "layers" else net
 
 
 def _leaves(tree):
@@ -789,7 +836,7 @@ def replay(checkpoint: str, cfg: dict | None = None) -> Replay:
     Benchmarks replay a run's solves with it."""
     params, _, step, rng, stored, _ = load_checkpoint(checkpoint, cfg)
     cfg = stored if cfg is None else cfg
-    return Replay(params, step, rng, cfg, Arrays(dataset(cfg, validation=True)[0], cfg["crop"], cfg["grid"]))
+    return Replay(params, step, rng, cfg, shape_arrays(dataset(cfg, validation=True)[0], cfg))
 
 
 # --------------------------------------------------------------------------
@@ -815,10 +862,22 @@ def decoded_layouts(params, arrays: Arrays, cfg: dict, probs_fn, chunk: int = 8,
                     size_prior: float = 0.0):
     """Per shape: (layout in the (G, G, G) grid or None when empty, iou) of
     the network's decoding (``fill``, ``size_prior``: see
-    :func:`stablelego_jax.train.net.decode`)."""
+    :func:`stablelego_jax.train.net.decode`; net "layers": bottom up,
+    :func:`stablelego_jax.train.layers.decode`)."""
     from .net import decode, decoded_iou
 
     out = []
+    if cfg["net"] == "layers":  # bottom up, each layer on the bricks decoded below it
+        from . import layers
+
+        for s in range(0, len(arrays.names), chunk):
+            sl = slice(s, s + chunk)
+            dec = layers.decode(probs_fn, params, arrays.target[sl], arrays.valid[sl], arrays.grid, cfg["threshold"],
+                                fill, size_prior)
+            for j, (pos, size) in enumerate(dec):
+                iou = decoded_iou(arrays.target[s + j], pos, size)
+                out.append((layout_of(pos + arrays.offset[s + j], size), iou))
+        return out
     for s in range(0, len(arrays.x), chunk):
         p = np.asarray(probs_fn(params, arrays.x[s:s + chunk], arrays.valid[s:s + chunk]))
         for j in range(len(p)):
@@ -874,11 +933,11 @@ def train(cfg: dict, out: str, resume: bool = False, log=sys.stderr, max_steps: 
         opt_state = opt.init(params)
         step, rng, history = 0, np.random.default_rng(cfg["seed"]), []
     train_shapes, val, held = dataset(cfg, validation=True)
-    tr = Arrays(train_shapes, cfg["crop"], cfg["grid"])
-    ev_val = Arrays(val, cfg["crop"], cfg["grid"])
+    tr = shape_arrays(train_shapes, cfg)
+    ev_val = shape_arrays(val, cfg)
     ev_idx = np.random.default_rng(cfg["data_seed"] + 1).permutation(len(train_shapes))[: cfg["eval_train"]]
-    ev_tr = Arrays([train_shapes[i] for i in sorted(ev_idx)], cfg["crop"], cfg["grid"])
-    ev_he = Arrays(held, cfg["crop"], cfg["grid"]) if cfg["eval_heldout"] else None
+    ev_tr = shape_arrays([train_shapes[i] for i in sorted(ev_idx)], cfg)
+    ev_he = shape_arrays(held, cfg) if cfg["eval_heldout"] else None
     lam = np.float64(cfg["lam"])
     stability = cfg["lam"] > 0
     how = ("; lam 0: no stability term" if not stability else
