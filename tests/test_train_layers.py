@@ -1,0 +1,177 @@
+"""The layer-by-layer generator (stablelego_jax.train.layers) and its training (config net "layers", imitate)."""
+import json
+import os
+
+import jax
+import numpy as np
+import pytest
+
+from stablelego_jax.blas import one_blas_thread
+from stablelego_jax.cli import main
+from stablelego_jax.generate.voxels import merge_voxels
+from stablelego_jax.train import layers, net
+from stablelego_jax.train import train as T
+from stablelego_jax.train.shapes import procedural_shape
+
+pytestmark = pytest.mark.usefixtures("x64")
+
+TINY = {"n_procedural": 8, "mesh_dir": None, "steps": 3, "batch": 2, "checkpoint_every": 2, "eval_every": 100,
+        "eval_train": 2, "eval_heldout": False, "log_every": 1, "width": 8, "dilations": [1, 2, 1], "lam": 0.0,
+        "lr": 0.01, "net": "layers", "imitate": 1.0, "n_pad": 16, "m_pad": 512, "p_pad": 32, "competitors": 4,
+        "random_competitors": 2}
+
+
+def _cfg(tmp_path, **kw):
+    path = tmp_path / "cfg.json"
+    path.write_text(json.dumps(dict(TINY, **kw)))
+    return T.load_config(str(path))
+
+
+def test_features_read_the_shape_and_the_joints_of_the_layer_below():
+    vox = np.zeros((6, 4, 3), bool)
+    vox[:, :2, 0] = True  # a 6 x 2 slab
+    vox[1:5, :2, 1] = True  # a 4 x 2 slab on it
+    ids = -np.ones(vox.shape, np.int32)
+    ids[0:2, :2, 0], ids[2:6, :2, 0] = 0, 1  # a joint between x = 1 and x = 2
+    f = layers.features(vox, ids, grid=20)
+    assert f.shape == (6, 4, 3, layers.N_FEATURES)
+    np.testing.assert_array_equal(f[..., layers.OCCUPIED], vox)
+    np.testing.assert_array_equal(f[:, :, 0, 1], vox[:, :, 1] * 0)  # layer z - 1 of layer 0: nothing
+    np.testing.assert_array_equal(f[:, :, 0, 3], vox[:, :, 1])  # layer z + 1
+    assert (f[:, :, 0, 10] == 0).all()  # no layer below layer 0
+    jx = f[:, :, 1, 10]
+    assert jx[1, 0] == jx[1, 1] == 1 and jx.sum() == 2  # the joint below layer 1, along x
+    assert (f[:, :, 1, 11] == 0).all()  # none along y
+    held = f[:, :, 1, 6]
+    np.testing.assert_array_equal(held, vox[:, :, 1])  # every cell of layer 1 rests on layer 0
+    np.testing.assert_allclose(f[:, :, 1, 9], vox[:, :, 1] * 2 / 20, rtol=1e-6)  # height (z + 1) / grid
+    # one layer alone is that layer of the whole; a layer reads only the bricks below it
+    np.testing.assert_array_equal(layers.features(vox, ids, 20, z=1), f[:, :, 1:2])
+    ids2 = ids.copy()
+    ids2[:, :, 1] = 7
+    np.testing.assert_array_equal(layers.features(vox, ids2, 20)[:, :, :2], f[:, :, :2])
+
+
+def test_distance_to_held_cells_marks_the_overhang():
+    vox = np.zeros((8, 1, 2), bool)
+    vox[0:2, 0, 0] = True
+    vox[0:6, 0, 1] = True  # cells 2..5 of layer 1 overhang
+    f = layers.features(vox, -np.ones(vox.shape, np.int32))
+    np.testing.assert_allclose(f[:6, 0, 1, 12], [0, 0, 1 / 8, 2 / 8, 3 / 8, 4 / 8])
+
+
+def test_teacher_is_the_merge_cover():
+    s = procedural_shape(2, kind="table")
+    ids, place = layers.teacher(s.vox)
+    lay = merge_voxels(s.vox)
+    assert place.sum() == lay.n
+    np.testing.assert_array_equal(ids >= 0, s.vox)
+    assert (place <= net.valid_placements(s.vox)).all()  # every teacher placement lies inside the shape
+    assert len(np.unique(ids[ids >= 0])) == lay.n
+
+
+def test_each_layer_is_its_own_and_a_crop_equals_the_grid():
+    s = procedural_shape(3, kind="bridge")
+    ids, _ = layers.teacher(s.vox)
+    params = layers.init_params(jax.random.PRNGKey(0), 8, (1, 2, 1))
+    x = layers.features(s.vox, ids)[None]
+    out = np.asarray(layers.apply(params, x, (1, 2, 1)))[0]
+    z = int(np.nonzero(s.vox.any((0, 1)))[0].max())
+    x2 = x.copy()
+    x2[0, :, :, z, 5] += 1.0  # change one layer's input
+    out2 = np.asarray(layers.apply(params, x2, (1, 2, 1)))[0]
+    assert not np.allclose(out2[:, :, z], out[:, :, z])
+    np.testing.assert_array_equal(out2[:, :, :z], out[:, :, :z])
+    c, o = net.crop(s.vox, (12, 12, s.vox.shape[2]))
+    sub = ids[o[0]:o[0] + 12, o[1]:o[1] + 12]
+    ids_c = -np.ones(c.shape, np.int32)
+    ids_c[:sub.shape[0], :sub.shape[1]] = sub
+    part = np.asarray(layers.apply(params, layers.features(c, ids_c)[None], (1, 2, 1)))[0]
+    xs, ys, zs = np.nonzero(c)
+    np.testing.assert_allclose(part[xs, ys, zs], out[xs + o[0], ys + o[1], zs], atol=1e-5)
+
+
+def test_decoding_bottom_up_covers_each_shape_exactly():
+    shapes = [procedural_shape(i, kind=k) for i, k in enumerate(("cantilever", "stairs", "mushroom"))]
+    vox = np.stack([net.crop(s.vox, (12, 12, 8))[0] for s in shapes])
+    valid = np.stack([net.valid_placements(v) for v in vox])
+    params = layers.init_params(jax.random.PRNGKey(1), 8, (1, 2, 1))
+    seen = []
+
+    def probs_fn(p, x, v):
+        seen.append(x.shape)
+        return np.asarray(layers.probabilities(p, x, v, (1, 2, 1)))
+
+    for fill in (True, False):
+        for v, (pos, size) in zip(vox, layers.decode(probs_fn, params, vox, valid, fill=fill)):
+            occ = np.zeros(v.shape, int)
+            for (x, y, z), (sx, sy) in zip(pos, size):
+                occ[x:x + sx, y:y + sy, z] += 1
+            assert occ.max() <= 1 and not (occ.astype(bool) & ~v).any()
+            if fill:
+                np.testing.assert_array_equal(occ.astype(bool), v)
+            assert (np.diff(pos[:, 2]) >= 0).all()  # lowest layers first
+    assert all(s[3] == 1 for s in seen)  # one layer a call, the batch's shapes together
+    assert max(s[0] for s in seen) == 3
+
+
+def test_training_imitates_the_teacher_and_evaluates_bottom_up(tmp_path, capsys):
+    """A few steps on one batch raise the teacher's placements' probabilities;
+    ``stablelego train`` / ``evaluate`` run the layers net end to end and
+    a checkpoint reloads to the same parameters."""
+    cfg = _cfg(tmp_path)
+    probs_fn, step_fn, opt, terms, _ = T.make_fns(cfg)
+    shapes = [procedural_shape(i, kind=k) for i, k in enumerate(("cantilever", "tee"))]
+    arr = T.shape_arrays(shapes, cfg)
+    assert arr.x.shape[-1] == layers.N_FEATURES and arr.teacher.shape == arr.valid.shape
+    params = T.initial_params(cfg, 0)
+    goal = arr.goal(np.arange(2))
+    assert isinstance(goal, tuple) and goal[1] is not None
+    with one_blas_thread():
+        before = np.asarray(probs_fn(params, arr.x, arr.valid))[arr.teacher].mean()
+        fid0 = float(terms(params, arr.x, arr.valid, goal, None, None, None, None)[0])
+        fid_plain = float(T.make_fns(dict(cfg, imitate=0.0))[3](params, arr.x, arr.valid, arr.target, None, None,
+                                                                  None, None)[0])
+        assert fid0 > fid_plain  # the cross-entropy adds to the fidelity
+        opt_state = opt.init(params)
+        for _ in range(15):
+            params, opt_state, _, _ = step_fn(params, opt_state, np.float64(0.0), np.float64(0.1), arr.x,
+                                              arr.valid, goal, T.Subset(None, None, None, None))
+        after = np.asarray(probs_fn(params, arr.x, arr.valid))[arr.teacher].mean()
+    assert after > before + 0.1
+    run = str(tmp_path / "run")
+    assert main(["train", "--config", str(tmp_path / "cfg.json"), "--out", run]) == 0
+    ckpt = os.path.join(run, "checkpoint.npz")
+    p1 = T.load_checkpoint(ckpt)[0]
+    assert p1[0][0].shape == (3, 3, layers.N_FEATURES, 8)
+    out = str(tmp_path / "val.jsonl")
+    assert main(["evaluate", "--checkpoint", ckpt, "--out", out, "--heuristic"]) == 0
+    rows = [json.loads(line) for line in open(out)]
+    assert {r["method"] for r in rows} == {"generator", "generator_filled", "heuristic"}
+    assert all(r["iou"] == 1.0 for r in rows if r["method"] == "generator_filled")
+
+
+def test_stability_term_reaches_the_layers_net(tmp_path):
+    cfg = _cfg(tmp_path, lam=50.0)
+    probs_fn, _, _, _, grad_fn = T.make_fns(cfg)
+    shapes = [procedural_shape(i, kind=k) for i, k in enumerate(("cantilever", "tee"))]
+    arr = T.shape_arrays(shapes, cfg)
+    params = T.initial_params(cfg, 0)
+    with one_blas_thread():
+        p = np.asarray(probs_fn(params, arr.x, arr.valid))
+        sub = T.batch_subsets(p, arr.valid, cfg, np.random.default_rng(0))
+        args = (arr.x, arr.valid, arr.goal(np.arange(2)), *sub)
+        _, aux, g1 = grad_fn(params, np.float64(50.0), np.float64(0.1), *args)
+        _, _, g0 = grad_fn(params, np.float64(0.0), np.float64(0.1), *args)
+    assert float(aux[2]) > 0.0
+    diff = [float(np.abs(np.asarray(a) - np.asarray(b)).sum()) for a, b in
+            zip(jax.tree_util.tree_leaves(g1), jax.tree_util.tree_leaves(g0))]
+    assert all(np.isfinite(diff)) and diff[0] > 0.0
+
+
+def test_config_checks_net_and_imitate(tmp_path):
+    for key, val, msg in (("net", "graph", "'net' must be one of"), ("imitate", -1.0, "imitate >= 0")):
+        bad = tmp_path / "bad.json"
+        bad.write_text(json.dumps({key: val}))
+        with pytest.raises(T.ConfigError, match=f"bad.json.*{msg}"):
+            T.load_config(str(bad))
