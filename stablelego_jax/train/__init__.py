@@ -1,7 +1,8 @@
 """Training a brick-layout generator with the differentiable stability loss.
 
 Modules: :mod:`.shapes` (target shapes, split by object), :mod:`.net` (the
-3D conv generator, placements, coverage, decoding), :mod:`.train` (loss,
+3D conv generator, placements, coverage, decoding), :mod:`.layers` (the
+layer-by-layer generator, decoded bottom up), :mod:`.train` (loss,
 training loop, checkpoints), :mod:`.evaluate` (held-out scoring with the
 exact solver). Command line: ``stablelego train`` and ``stablelego
 evaluate``. Needs optax (``pip install 'stablelego-jax[train]'``).
