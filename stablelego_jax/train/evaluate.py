@@ -179,16 +179,22 @@ def write_results(out: str, rows: list[dict], layouts_dir: str | None = None, la
         raise
 
 
+def _missing(path: str) -> tuple[list[str], str]:
+    """(the folders from ``path`` (absolute) up that do not exist, top first;
+    the nearest one that does)."""
+    missing = []
+    while not os.path.lexists(path):
+        missing.append(path)
+        path = os.path.dirname(path)
+    return missing[::-1], path
+
+
 def _make_folders(dirs) -> list[str]:
     """Make each folder of ``dirs`` (absolute paths) with its missing
     parents; the folders made, each after its parent."""
     made = []
     for d in dirs:
-        missing = []
-        while not os.path.lexists(d):
-            missing.append(d)
-            d = os.path.dirname(d)
-        for m in reversed(missing):
+        for m in _missing(d)[0]:
             os.mkdir(m)
             made.append(m)
     return made
@@ -197,9 +203,7 @@ def _make_folders(dirs) -> list[str]:
 def _can_make_folder(path: str) -> bool:
     """Whether ``path`` is a writable folder, or one can be made there (its
     nearest existing ancestor is a writable folder)."""
-    p = os.path.abspath(path)
-    while not os.path.lexists(p):
-        p = os.path.dirname(p)
+    p = _missing(os.path.abspath(path))[1]
     return os.path.isdir(p) and os.access(p, os.W_OK | os.X_OK)
 
 
