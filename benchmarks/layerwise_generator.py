@@ -25,7 +25,8 @@ judged by the exact solver (HiGHS), and so is the merge's. Prints one line
 per shape (name, stands, bricks, merge stands, merge bricks) and the totals.
 No stability term. ``--refine-solves N``: then each cover is refined as
 ``stablelego evaluate --refine-solves N`` refines a decoding. Nothing is written. Results:
-BENCHMARKS.md, issue 19 item 3, session 67.
+BENCHMARKS.md, issue 19 item 3, session 67. The library's version (session 68):
+:mod:`stablelego_jax.train.layers`, config ``net: "layers"``; this probe stays as the record of session 67.
 """
 import argparse
 import time

@@ -1,0 +1,125 @@
+"""Issue 19, item 3 (session 68): the layer-by-layer generator's three seeds against the rule of
+``benchmarks/results/train_layers_s68/PROTOCOL.md``.
+
+    python benchmarks/layers_runs.py [--runs benchmarks/results/train_layers_s68] [--seeds 0,1,2]
+
+Reads each seed's ``seedK/history.json`` (``stablelego train``) and its evaluations
+``seedK/val_solves32.jsonl`` and, when present, ``seedK/heldout_solves32.jsonl`` (``stablelego
+evaluate --heuristic --refine-solves 32``: every verdict is HiGHS's). Prints, per split, the stable
+fraction at IoU 1 of the filled decoding, generator + refinement, the merge and the merge + refinement
+for each seed and their mean, the rule's choice (the layers net is chosen when its validation mean of
+generator + refinement is strictly above session 64's 0.781), and, with the held-out rows, whether
+issue 19's target (a mean of either generator row at least the merge's) is met. Draws
+``RUNS/training_curves.png``: each seed's loss and fidelity against the step. Exit 2 with one line
+when a file is missing or malformed.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+
+import numpy as np
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+sys.path.insert(0, HERE)
+from rows import RowsError, all_rows  # noqa: E402
+
+#: session 64's validation mean of generator + refinement (32 exact solves) for both lambdas of the 3D
+#: net, and the merge's, on the same 32 shapes (BENCHMARKS.md; val/refine_validation_s64.txt)
+BAR = 0.781
+METHODS = ("generator_filled", "generator_refined", "heuristic", "heuristic_refined")
+
+
+def fractions(rows: list[dict], path: str) -> dict:
+    """{method: stable fraction at IoU 1} of one evaluation's rows."""
+    out = {}
+    for m in METHODS:
+        rs = [r for r in rows if r["method"] == m]
+        if not rs:
+            raise RowsError(f"{path}: no rows of method {m}")
+        out[m] = float(np.mean([bool(r["stable"]) and r["iou"] == 1.0 for r in rs]))
+    out["n"] = len([r for r in rows if r["method"] == "heuristic"])
+    return out
+
+
+def table(runs: str, seeds: list[int], name: str) -> dict | None:
+    """{seed: fractions} of ``seedK/NAME`` for every seed, None when no seed has it."""
+    paths = {k: os.path.join(runs, f"seed{k}", name) for k in seeds}
+    if not any(os.path.exists(p) for p in paths.values()):
+        return None
+    return {k: fractions(all_rows(p), p) for k, p in paths.items()}
+
+
+def show(title: str, res: dict, seeds: list[int]) -> dict:
+    """Print one split's table; {method: mean over the seeds}."""
+    n = res[seeds[0]]["n"]
+    print(f"| {title} ({n} shapes), IoU 1, stable | " + " | ".join(f"seed {k}" for k in seeds) + " | mean |")
+    print("|---|" + "---|" * (len(seeds) + 1))
+    means = {}
+    for m in METHODS:
+        vals = [res[k][m] for k in seeds]
+        means[m] = float(np.mean(vals))
+        print(f"| {m} | " + " | ".join(f"{v:.3f}" for v in vals) + f" | {means[m]:.3f} |")
+    print()
+    return means
+
+
+def curves(runs: str, seeds: list[int], out: str) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(1, 2, figsize=(10, 4))
+    for k in seeds:
+        path = os.path.join(runs, f"seed{k}", "history.json")
+        try:
+            hist = json.load(open(path))["history"]
+        except (OSError, ValueError, KeyError) as e:
+            raise RowsError(f"{path}: cannot read the history ({e})") from None
+        h = [r for r in hist if "loss" in r]
+        ax[0].plot([r["step"] for r in h], [r["loss"] for r in h], label=f"seed {k}", lw=0.8)
+        ax[1].plot([r["step"] for r in h], [r["fidelity"] for r in h], label=f"seed {k}", lw=0.8)
+    for a, t in zip(ax, ("loss", "fidelity + imitation")):
+        a.set_xlabel("step")
+        a.set_title(t)
+        a.set_yscale("log")
+        a.legend()
+    fig.suptitle("layer-by-layer generator, configs/layers.json (lambda 0, imitate 1)")
+    fig.tight_layout()
+    fig.savefig(out, dpi=100)
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--runs", default=os.path.join(HERE, "results", "train_layers_s68"))
+    ap.add_argument("--seeds", default="0,1,2")
+    args = ap.parse_args()
+    seeds = [int(s) for s in args.seeds.split(",")]
+    try:
+        val = table(args.runs, seeds, "val_solves32.jsonl")
+        if val is None:
+            raise RowsError(f"{args.runs}: no seed has val_solves32.jsonl")
+        vm = show("validation", val, seeds)
+        chosen = vm["generator_refined"] > BAR
+        print(f"rule: validation mean of generator + refinement {vm['generator_refined']:.3f} "
+              f"{'>' if chosen else '<='} {BAR}: the layers net is {'chosen' if chosen else 'not chosen'}")
+        held = table(args.runs, seeds, "heldout_solves32.jsonl")
+        if held is not None:
+            print()
+            hm = show("held-out", held, seeds)
+            best = max(hm["generator_filled"], hm["generator_refined"])
+            print(f"target: generator (best row) {best:.3f} against the merge's {hm['heuristic']:.3f}: "
+                  f"{'met' if best >= hm['heuristic'] else 'not met'}"
+                  + ("" if chosen else " (not the protocol's result: the layers net was not chosen)"))
+        curves(args.runs, seeds, os.path.join(args.runs, "training_curves.png"))
+    except RowsError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
