@@ -10,7 +10,8 @@ fraction at IoU 1 of the filled decoding, generator + refinement, the merge and 
 for each seed and their mean, the rule's choice (the layers net is chosen when its validation mean of
 generator + refinement is strictly above session 64's 0.781), and, with the held-out rows, whether
 issue 19's target (a mean of either generator row at least the merge's) is met. Draws
-``RUNS/training_curves.png``: each seed's loss and fidelity against the step. Exit 2 with one line
+``RUNS/training_curves.png``: each seed's loss and fidelity (with the imitation term) against the step,
+a batch a point and a running mean of 5. Exit 2 with one line
 when a file is missing or malformed.
 """
 from __future__ import annotations
@@ -81,8 +82,13 @@ def curves(runs: str, seeds: list[int], out: str) -> None:
         except (OSError, ValueError, KeyError) as e:
             raise RowsError(f"{path}: cannot read the history ({e})") from None
         h = [r for r in hist if "loss" in r]
-        ax[0].plot([r["step"] for r in h], [r["loss"] for r in h], label=f"seed {k}", lw=0.8)
-        ax[1].plot([r["step"] for r in h], [r["fidelity"] for r in h], label=f"seed {k}", lw=0.8)
+        steps = np.array([r["step"] for r in h])
+        for a, key in zip(ax, ("loss", "fidelity")):
+            v = np.array([r[key] for r in h])
+            line, = a.plot(steps, v, lw=0.5, alpha=0.5)
+            if len(v) >= 5:  # each point is one batch of 8 shapes: a running mean of 5 shows the trend
+                a.plot(steps[4:], np.convolve(v, np.ones(5) / 5, "valid"), color=line.get_color(), lw=1.8,
+                       label=f"seed {k} (running mean of 5)")
     for a, t in zip(ax, ("loss", "fidelity + imitation")):
         a.set_xlabel("step")
         a.set_title(t)
