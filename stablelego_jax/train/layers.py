@@ -26,6 +26,7 @@ import jax.numpy as jnp
 import numpy as np
 from scipy import ndimage
 
+from ..layout import cells_of
 from . import net
 
 __all__ = ["N_FEATURES", "features", "brick_ids", "teacher", "init_params", "apply", "logits", "probabilities",
@@ -41,8 +42,8 @@ def brick_ids(shape, pos, size) -> np.ndarray:
     """(X, Y, Z) int32 grid: the index of the brick on each cell, -1 where none
     (pos (n, 3) min corners, size (n, 2) footprints in studs)."""
     ids = -np.ones(shape, np.int32)
-    for i, ((x, y, z), (sx, sy)) in enumerate(zip(np.asarray(pos).tolist(), np.asarray(size).tolist())):
-        ids[x:x + sx, y:y + sy, z] = i
+    cells, owner = cells_of(np.asarray(pos, np.int64).reshape(-1, 3), np.asarray(size, np.int64).reshape(-1, 2))
+    ids[tuple(cells.T)] = owner
     return ids
 
 
@@ -154,7 +155,8 @@ def decode(probs_fn, params, vox, valid, grid: int = 20, threshold: float = 0.5,
     vox = np.asarray(vox, bool)
     S, X, Y, Z = vox.shape
     ids = -np.ones(vox.shape, np.int32)
-    out = [([], []) for _ in range(S)]
+    out = [[(np.zeros((0, 3), np.int64), np.zeros((0, 2), np.int64))] for _ in range(S)]
+    n = [0] * S  # bricks decoded so far, per shape
     for z in range(Z):
         live = [s for s in range(S) if vox[s, :, :, z].any()]
         if not live:
@@ -163,8 +165,9 @@ def decode(probs_fn, params, vox, valid, grid: int = 20, threshold: float = 0.5,
         p = np.asarray(probs_fn(params, x, valid[live, :, :, z:z + 1]))
         for j, s in enumerate(live):
             _, pos, size = net.decode(p[j], threshold, fill, valid[s, :, :, z:z + 1], size_prior)
-            for (px, py, _), (sx, sy) in zip(pos.tolist(), size.tolist()):
-                ids[s, px:px + sx, py:py + sy, z] = len(out[s][0])
-                out[s][0].append((px, py, z))
-                out[s][1].append((sx, sy))
-    return [(np.asarray(p, np.int64).reshape(-1, 3), np.asarray(q, np.int64).reshape(-1, 2)) for p, q in out]
+            pos[:, 2] = z
+            cells, owner = cells_of(pos, size)
+            ids[s][tuple(cells.T)] = owner + n[s]
+            n[s] += len(pos)
+            out[s].append((pos, size))
+    return [(np.concatenate([q[0] for q in o]), np.concatenate([q[1] for q in o])) for o in out]

@@ -866,24 +866,23 @@ def decoded_layouts(params, arrays: Arrays, cfg: dict, probs_fn, chunk: int = 8,
     :func:`stablelego_jax.train.layers.decode`)."""
     from .net import decode, decoded_iou
 
-    out = []
-    if cfg["net"] == "layers":  # bottom up, each layer on the bricks decoded below it
-        from . import layers
-
+    def chunks():
+        """(pos, size) of each shape's decoding, in the crop, a chunk of shapes at a time."""
         for s in range(0, len(arrays.names), chunk):
-            sl = slice(s, s + chunk)
-            dec = layers.decode(probs_fn, params, arrays.target[sl], arrays.valid[sl], arrays.grid, cfg["threshold"],
-                                fill, size_prior)
-            for j, (pos, size) in enumerate(dec):
-                iou = decoded_iou(arrays.target[s + j], pos, size)
-                out.append((layout_of(pos + arrays.offset[s + j], size), iou))
-        return out
-    for s in range(0, len(arrays.x), chunk):
-        p = np.asarray(probs_fn(params, arrays.x[s:s + chunk], arrays.valid[s:s + chunk]))
-        for j in range(len(p)):
-            _, pos, size = decode(p[j], cfg["threshold"], fill, arrays.valid[s + j], size_prior)
-            iou = decoded_iou(arrays.target[s + j], pos, size)
-            out.append((layout_of(pos + arrays.offset[s + j], size), iou))  # back into the (G, G, G) grid
+            if cfg["net"] == "layers":  # bottom up, each layer on the bricks decoded below it
+                from . import layers
+
+                yield from layers.decode(probs_fn, params, arrays.target[s:s + chunk], arrays.valid[s:s + chunk],
+                                         arrays.grid, cfg["threshold"], fill, size_prior)
+                continue
+            p = np.asarray(probs_fn(params, arrays.x[s:s + chunk], arrays.valid[s:s + chunk]))
+            for j in range(len(p)):
+                yield decode(p[j], cfg["threshold"], fill, arrays.valid[s + j], size_prior)[1:]
+
+    out = []
+    for i, (pos, size) in enumerate(chunks()):
+        iou = decoded_iou(arrays.target[i], pos, size)
+        out.append((layout_of(pos + arrays.offset[i], size), iou))  # back into the (G, G, G) grid
     return out
 
 
