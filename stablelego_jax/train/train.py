@@ -2,15 +2,18 @@
 
     stablelego train [--config CONFIG] [--out DIR] [--resume] [--seed S] [--lam L] [--steps N] [--jobs N]
 
-Loss per shape (B shapes per step, averaged):
+Loss per shape (B shapes per step, averaged; with ``sample`` "layers", B
+one-layer samples of the layers net: see ``SAMPLES``):
 
-* fidelity: the sum over target cells of (coverage - 1)^2, times
+* fidelity: ``fidelity`` (default 1; 0 drops the term) times the sum over target cells of (coverage - 1)^2, times
   ``under_weight`` where coverage < 1 (a cell left out costs more than a
   cell claimed twice on the way from one brick to another); coverage = the
   sum of the probabilities of the placements covering the cell; plus
   ``brick_weight`` * the sum of p over placements (a cost per brick, so
   fewer, larger bricks tile the shape more cheaply than 1x1s); plus ``bin_weight`` * the sum of p (1 - p) over placements
   (pushes probabilities to 0 or 1; its weight ramps up over the run);
+  plus ``imitate`` * the cross-entropy against the merge heuristic's
+  placements (0: none);
 * stability: :func:`stablelego_jax.loss.stability_loss` of the soft layout
   over a subset of the placements, with existence weights = the generator's
   probabilities turned into shares of contested cells
@@ -120,6 +123,8 @@ DEFAULTS = {
     "solver_iters": 30,
     "net": "volume",
     "imitate": 0.0,
+    "fidelity": 1.0,
+    "sample": "shapes",
 }
 
 #: Config keys that change how the loss is computed, not its value: a
@@ -136,6 +141,12 @@ STABILITY_KEYS = ("absent_below", "solver_iters", "temperature", "competitors", 
 #: The generators (config key ``net``): "volume", the 3D conv net of
 #: :mod:`.net`; "layers", the layer-by-layer net of :mod:`.layers`.
 NETS = ("volume", "layers")
+
+#: What a training batch draws (config key ``sample``): "shapes", ``batch``
+#: whole shapes; "layers", ``batch`` non-empty layers of the training shapes,
+#: each a one-layer sample whose layer below is the teacher's (net "layers",
+#: lam 0 only: :meth:`Arrays.layer_samples`).
+SAMPLES = ("shapes", "layers")
 
 
 class ConfigError(ValueError):
@@ -185,13 +196,17 @@ def load_config(path: str, **overrides) -> dict:
                        ("random_pool", ("span", "valid")),
                         ("lr_schedule", ("constant", "cosine")),
                        ("stability_solves", ("each", "batch")),
-                       ("net", NETS)):
+                       ("net", NETS),
+                       ("sample", SAMPLES)):
         if cfg[k] not in allowed:
             raise ConfigError(f"{path}: config key {k!r} must be one of {', '.join(allowed)}, got {cfg[k]!r}")
     if cfg["lam"] < 0 or not 0 < cfg["threshold"] <= 1:
         raise ConfigError(f"{path}: need lam >= 0 and 0 < threshold <= 1")
-    if cfg["imitate"] < 0:
-        raise ConfigError(f"{path}: need imitate >= 0, got {cfg['imitate']}")
+    if cfg["imitate"] < 0 or cfg["fidelity"] < 0:
+        raise ConfigError(f"{path}: need imitate >= 0 and fidelity >= 0, got {cfg['imitate']} and {cfg['fidelity']}")
+    if cfg["sample"] == "layers" and (cfg["net"] != "layers" or cfg["lam"] > 0):
+        raise ConfigError(f"{path}: sample 'layers' needs net 'layers' and lam 0 (the stability term "
+                          f"judges whole shapes), got net {cfg['net']!r} and lam {cfg['lam']:g}")
     if not 0 < cfg["share_power"] <= 1:
         raise ConfigError(f"{path}: need 0 < share_power <= 1, got {cfg['share_power']}")
     if not 0 <= cfg["absent_below"] < 1:
@@ -291,6 +306,22 @@ class Arrays:
             self.x = np.stack([layers.features(t, ids, grid) for t, (ids, _) in zip(self.target, taught)])
         else:
             self.x = np.stack([features(t, grid) for t in self.target])
+
+    def layer_samples(self) -> "Arrays":
+        """The non-empty layers of these shapes as one-layer samples, for
+        training with ``sample`` "layers" (net "layers": each layer's
+        features already hold the layers around it and the teacher's layer
+        below): x (N, cx, cy, 1, C), valid, span, target and teacher alike,
+        names "SHAPE@zK", offset (N, 3) each layer's corner in the grid."""
+        s, z = np.nonzero(self.target.any(axis=(1, 2)))  # (S, cz) -> the non-empty layers
+        out = object.__new__(Arrays)
+        out.names = [f"{self.names[i]}@z{k}" for i, k in zip(s, z)]
+        out.grid = self.grid
+        for k in ("target", "x", "valid", "span", "teacher"):
+            a = getattr(self, k)
+            setattr(out, k, None if a is None else a[s, :, :, z][:, :, :, None])
+        out.offset = self.offset[s] + np.stack([np.zeros_like(z), np.zeros_like(z), z], axis=1)
+        return out
 
     def goal(self, b):
         """The loss's target of shapes ``b``: target[b], or with a teacher the pair
@@ -444,7 +475,7 @@ def bin_weight(cfg: dict, step: int) -> float:
 # everything else, grad_floor and brick_weight included, enters as a value,
 # so a sweep over those reuses one compilation
 _GRAPH_KEYS = ("dilations", "logit_bound", "temperature", "under_weight", "share_scope", "share_floor",
-               "share_power", "absent_below", "solver_iters", "net", "imitate")
+               "share_power", "absent_below", "solver_iters", "net", "imitate", "fidelity")
 _OPT_KEYS = ("lr", "lr_schedule", "steps", "lr_final_frac", "clip")
 
 
@@ -579,7 +610,7 @@ def _model_fns(key: str):
         p, p_g, cov, lg = forward(params, floor, x, valid)
         B = p.shape[0]
         err = jnp.where(cov < 1.0, cfg["under_weight"], 1.0) * (cov - 1.0) ** 2
-        fid = jnp.where(target, err, 0.0).reshape(B, -1).sum(1).mean()
+        fid = cfg["fidelity"] * jnp.where(target, err, 0.0).reshape(B, -1).sum(1).mean()
         # economy: each placement's probability costs brick_weight
         fid = fid + brick_weight * p_g.reshape(B, -1).sum(1).mean()
         if cfg["imitate"] > 0:  # cross-entropy against the teacher's placements, over the valid ones
@@ -933,6 +964,8 @@ def train(cfg: dict, out: str, resume: bool = False, log=sys.stderr, max_steps: 
         step, rng, history = 0, np.random.default_rng(cfg["seed"]), []
     train_shapes, val, held = dataset(cfg, validation=True)
     tr = shape_arrays(train_shapes, cfg)
+    if cfg["sample"] == "layers":
+        tr = tr.layer_samples()
     ev_val = shape_arrays(val, cfg)
     ev_idx = np.random.default_rng(cfg["data_seed"] + 1).permutation(len(train_shapes))[: cfg["eval_train"]]
     ev_tr = shape_arrays([train_shapes[i] for i in sorted(ev_idx)], cfg)
