@@ -175,3 +175,64 @@ def test_config_checks_net_and_imitate(tmp_path):
         bad.write_text(json.dumps({key: val}))
         with pytest.raises(T.ConfigError, match=f"bad.json.*{msg}"):
             T.load_config(str(bad))
+
+
+def test_config_checks_sample_and_fidelity(tmp_path):
+    for extra, msg in (({"sample": "rows"}, "'sample' must be one of"),
+                       ({"sample": "layers", "net": "volume"}, "sample 'layers' needs net 'layers' and lam 0"),
+                       ({"sample": "layers", "net": "layers", "lam": 10.0}, "sample 'layers' needs net 'layers'"),
+                       ({"fidelity": -1.0}, "fidelity >= 0")):
+        bad = tmp_path / "bad.json"
+        bad.write_text(json.dumps(extra))
+        with pytest.raises(T.ConfigError, match=f"bad.json.*{msg}"):
+            T.load_config(str(bad))
+
+
+def test_layer_samples_are_the_non_empty_layers_and_the_net_sees_them_alike(tmp_path):
+    """``Arrays.layer_samples``: one sample per non-empty layer, each the
+    shape's own slice; the net's logits of a sample are the shape's at that
+    layer (each layer is its own), so training on samples trains the same
+    function."""
+    cfg = _cfg(tmp_path, sample="layers")
+    shapes = [procedural_shape(i, kind=k) for i, k in enumerate(("cantilever", "tee"))]
+    arr = T.shape_arrays(shapes, cfg)
+    ls = arr.layer_samples()
+    nonempty = [(s, z) for s in range(2) for z in range(arr.target.shape[3]) if arr.target[s, :, :, z].any()]
+    assert len(ls.names) == len(nonempty) and ls.x.shape[0] == len(nonempty)
+    assert ls.x.shape[1:] == arr.x.shape[1:3] + (1, layers.N_FEATURES)
+    for i, (s, z) in enumerate(nonempty):
+        assert ls.names[i] == f"{arr.names[s]}@z{z}"
+        np.testing.assert_array_equal(ls.offset[i], arr.offset[s] + [0, 0, z])
+        for k in ("x", "valid", "target", "teacher", "span"):
+            np.testing.assert_array_equal(getattr(ls, k)[i, :, :, 0], getattr(arr, k)[s, :, :, z])
+    params = T.initial_params(cfg, 0)
+    probs_fn = T.make_fns(cfg)[0]
+    whole = np.asarray(probs_fn(params, arr.x, arr.valid))
+    each = np.asarray(probs_fn(params, ls.x, ls.valid))
+    for i, (s, z) in enumerate(nonempty):
+        np.testing.assert_allclose(each[i, :, :, 0], whole[s, :, :, z], rtol=1e-6, atol=1e-7)
+
+
+def test_fidelity_zero_leaves_the_cross_entropy_and_training_on_layers_runs(tmp_path):
+    cfg = _cfg(tmp_path, sample="layers", fidelity=0.0, bin_weight=0.0, bin_weight_final=0.0, batch=4)
+    shapes = [procedural_shape(i, kind=k) for i, k in enumerate(("cantilever", "tee"))]
+    arr = T.shape_arrays(shapes, cfg).layer_samples()
+    b = np.arange(4)
+    params = T.initial_params(cfg, 0)
+    none = (None, None, None, None)
+    with one_blas_thread():
+        fid = float(T.make_fns(cfg)[3](params, arr.x[b], arr.valid[b], arr.goal(b), *none)[0])
+        nothing = float(T.make_fns(dict(cfg, imitate=0.0))[3](params, arr.x[b], arr.valid[b], arr.goal(b)[0],
+                                                             *none)[0])
+        both = float(T.make_fns(dict(cfg, fidelity=1.0))[3](params, arr.x[b], arr.valid[b], arr.goal(b), *none)[0])
+    assert nothing == 0.0  # no coverage term, no cross-entropy: nothing left
+    assert 0.0 < fid < both
+    # the cross-entropy by hand: summed over each sample's valid placements, a mean over the samples
+    p = np.asarray(T.make_fns(cfg)[0](params, arr.x[b], arr.valid[b]), np.float64)
+    t, v = arr.teacher[b], arr.valid[b]
+    bce = np.where(v, -(t * np.log(np.where(v, p, 0.5)) + (~t) * np.log1p(-p)), 0.0)
+    np.testing.assert_allclose(fid, bce.reshape(4, -1).sum(1).mean(), rtol=1e-9)
+    run = str(tmp_path / "run")
+    assert main(["train", "--config", str(tmp_path / "cfg.json"), "--out", run]) == 0
+    hist = json.load(open(os.path.join(run, "history.json")))
+    assert hist["config"]["sample"] == "layers" and hist["history"][-1]["step"] == 3
