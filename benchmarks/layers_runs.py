@@ -1,7 +1,8 @@
 """Issue 19, item 3 (session 68): the layer-by-layer generator's three seeds against the rule of
 ``benchmarks/results/train_layers_s68/PROTOCOL.md``.
 
-    python benchmarks/layers_runs.py [--runs benchmarks/results/train_layers_s68] [--seeds 0,1,2]
+    python benchmarks/layers_runs.py [--runs benchmarks/results/train_layers_s68] [--seeds 0,1,2] \
+        [--merge-rows FILE]
 
 Reads each seed's ``seedK/history.json`` (``stablelego train``) and its evaluations
 ``seedK/val_solves32.jsonl`` and, when present, ``seedK/heldout_solves32.jsonl`` (``stablelego
@@ -12,7 +13,10 @@ generator + refinement is strictly above session 64's 0.781), and, with the held
 issue 19's target (a mean of either generator row at least the merge's) is met. Draws
 ``RUNS/training_curves.png``: each seed's loss and fidelity (with the imitation term) against the step,
 a batch a point and a running mean of 5. Exit 2 with one line
-when a file is missing or malformed.
+when a file is missing or malformed. Session 69's runs (``train_layers_s69``, rule in its
+PROTOCOL.md: the same bar, counted as 76 of 96 rows) were evaluated on validation without
+``--heuristic``: the merge's rows there are taken from ``--merge-rows`` (default: session 68's seed 0
+file, the same 32 shapes; the merge and its refinement do not depend on the generator).
 """
 from __future__ import annotations
 
@@ -34,24 +38,31 @@ BAR = 25 / 32
 METHODS = ("generator_filled", "generator_refined", "heuristic", "heuristic_refined")
 
 
-def fractions(rows: list[dict], path: str) -> dict:
-    """{method: stable fraction at IoU 1} of one evaluation's rows."""
+def fractions(rows: list[dict], path: str, merge: list[dict] | None = None) -> dict:
+    """{method: stable fraction at IoU 1} of one evaluation's rows; the merge's
+    methods from ``merge`` (rows of the same shapes) where ``rows`` has none."""
     out = {}
     for m in METHODS:
         rs = [r for r in rows if r["method"] == m]
+        if not rs and merge is not None and m.startswith("heuristic"):
+            rs = [r for r in merge if r["method"] == m]
+            if {r["shape"] for r in rs} != {r["shape"] for r in rows}:
+                raise RowsError(f"{path}: the merge's rows are of other shapes")
         if not rs:
             raise RowsError(f"{path}: no rows of method {m}")
         out[m] = float(np.mean([bool(r["stable"]) and r["iou"] == 1.0 for r in rs]))
-    out["n"] = len([r for r in rows if r["method"] == "heuristic"])
+        out[f"{m}_count"] = int(sum(bool(r["stable"]) and r["iou"] == 1.0 for r in rs))
+    out["n"] = len([r for r in rows if r["method"] == "generator_filled"])
     return out
 
 
-def table(runs: str, seeds: list[int], name: str) -> dict | None:
+def table(runs: str, seeds: list[int], name: str, merge: str | None = None) -> dict | None:
     """{seed: fractions} of ``seedK/NAME`` for every seed, None when no seed has it."""
     paths = {k: os.path.join(runs, f"seed{k}", name) for k in seeds}
     if not any(os.path.exists(p) for p in paths.values()):
         return None
-    return {k: fractions(all_rows(p), p) for k, p in paths.items()}
+    extra = all_rows(merge) if merge else None
+    return {k: fractions(all_rows(p), p, extra) for k, p in paths.items()}
 
 
 def show(title: str, res: dict, seeds: list[int]) -> dict:
@@ -63,6 +74,7 @@ def show(title: str, res: dict, seeds: list[int]) -> dict:
     for m in METHODS:
         vals = [res[k][m] for k in seeds]
         means[m] = float(np.mean(vals))
+        means[f"{m}_count"] = sum(res[k][f"{m}_count"] for k in seeds)
         print(f"| {m} | " + " | ".join(f"{v:.3f}" for v in vals) + f" | {means[m]:.3f} |")
     print()
     return means
@@ -94,7 +106,7 @@ def curves(runs: str, seeds: list[int], out: str) -> None:
         a.set_title(t)
         a.set_yscale("log")
         a.legend()
-    fig.suptitle("layer-by-layer generator, configs/layers.json (lambda 0, imitate 1)")
+    fig.suptitle(f"layer-by-layer generator, {os.path.basename(os.path.normpath(runs))}")
     fig.tight_layout()
     fig.savefig(out, dpi=100)
 
@@ -103,15 +115,19 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--runs", default=os.path.join(HERE, "results", "train_layers_s68"))
     ap.add_argument("--seeds", default="0,1,2")
+    ap.add_argument("--merge-rows", default=os.path.join(HERE, "results", "train_layers_s68", "seed0",
+                                                         "val_solves32.jsonl"),
+                    help="the merge's validation rows, where a run's own have none")
     args = ap.parse_args()
     seeds = [int(s) for s in args.seeds.split(",")]
     try:
-        val = table(args.runs, seeds, "val_solves32.jsonl")
+        val = table(args.runs, seeds, "val_solves32.jsonl", args.merge_rows)
         if val is None:
             raise RowsError(f"{args.runs}: no seed has val_solves32.jsonl")
         vm = show("validation", val, seeds)
         chosen = vm["generator_refined"] > BAR
         print(f"rule: validation mean of generator + refinement {vm['generator_refined']:.3f} "
+              f"({vm['generator_refined_count']} of {len(seeds) * val[seeds[0]]['n']} rows) "
               f"{'>' if chosen else '<='} {BAR:.5f}: the layers net is {'chosen' if chosen else 'not chosen'}")
         held = table(args.runs, seeds, "heldout_solves32.jsonl")
         if held is not None:
