@@ -1,5 +1,6 @@
 """The layer-by-layer generator (stablelego_jax.train.layers) and its training (config net "layers", imitate)."""
 import json
+import re
 import os
 
 import jax
@@ -236,3 +237,34 @@ def test_fidelity_zero_leaves_the_cross_entropy_and_training_on_layers_runs(tmp_
     assert main(["train", "--config", str(tmp_path / "cfg.json"), "--out", run]) == 0
     hist = json.load(open(os.path.join(run, "history.json")))
     assert hist["config"]["sample"] == "layers" and hist["history"][-1]["step"] == 3
+
+
+def test_init_starts_from_a_checkpoints_parameters(tmp_path, capsys):
+    """``init`` (``train --init``): a run starts from another run's parameters
+    with a fresh optimizer; another network, or a missing file, is a one-line
+    error naming the file, and nothing is written."""
+    cfg = _cfg(tmp_path)
+    first = str(tmp_path / "first")
+    with one_blas_thread():
+        T.train(cfg, first, log=open(os.devnull, "w"))
+    ckpt = os.path.join(first, "checkpoint.npz")
+    trained = T.load_checkpoint(ckpt)[0]
+    start, _ = T.train(_cfg(tmp_path, init=ckpt, lr=0.5), str(tmp_path / "second"), max_steps=0,
+                       log=open(os.devnull, "w"))
+    for a, b in zip(jax.tree_util.tree_leaves(start), jax.tree_util.tree_leaves(trained)):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    # and on through the CLI, one step: it moves away from them
+    run = str(tmp_path / "tuned")
+    assert main(["train", "--config", str(tmp_path / "cfg.json"), "--init", ckpt, "--steps", "1", "--out", run]) == 0
+    tuned = T.load_checkpoint(os.path.join(run, "checkpoint.npz"))
+    assert tuned[2] == 1 and tuned[4]["init"] == os.path.abspath(ckpt)
+    assert any(not np.array_equal(np.asarray(a), np.asarray(b)) for a, b in
+               zip(jax.tree_util.tree_leaves(tuned[0]), jax.tree_util.tree_leaves(trained)))
+    capsys.readouterr()
+    (tmp_path / "wide.json").write_text(json.dumps(dict(TINY, width=12)))
+    for config, init, msg in (("wide.json", ckpt, "init checkpoint has another network: width 8 .run: 12."),
+                              ("cfg.json", str(tmp_path / "nope.npz"), "init checkpoint .* not found")):
+        out = tmp_path / f"bad_{config}"
+        assert main(["train", "--config", str(tmp_path / config), "--init", init, "--out", str(out)]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and re.search(msg, err[0]) and not out.exists(), err

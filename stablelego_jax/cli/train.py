@@ -15,7 +15,8 @@ from ..train.shapes import FRESH_COUNT, SPLITS
 def add_parsers(sub) -> None:
     t = sub.add_parser(
         "train", help="train a brick-layout generator with shape fidelity + lambda x the stability loss",
-        description="Train the 3D conv generator of stablelego_jax.train on procedural shapes and the meshes "
+        description="Train a generator of stablelego_jax.train (the config's net: the 3D conv net or the "
+                    "layer-by-layer one) on procedural shapes and the meshes "
                     "of the config's mesh_dir (a relative path is taken from the working folder). Writes "
                     "OUT/checkpoint.npz every checkpoint_every steps and at the end, and OUT/history.json. "
                     "Needs optax: pip install 'stablelego-jax[train]'.",
@@ -28,6 +29,9 @@ def add_parsers(sub) -> None:
     t.add_argument("--seed", type=int, default=None, help="override the config's seed")
     t.add_argument("--lam", type=float, default=None, help="override the config's stability weight lambda")
     t.add_argument("--steps", type=int, default=None, help="override the config's step count")
+    t.add_argument("--init", default=None, metavar="CHECKPOINT",
+                   help="start from this checkpoint's parameters (the config's init; same net, width and "
+                        "dilations), a fresh optimizer at step 0: fine-tuning, e.g. with --lam > 0")
     t.add_argument("--jobs", type=int, default=None, metavar="N",
                    help="subsets solved at once, in threads (the config's solve_jobs; 0, the default: every core); "
                         "the same numbers whatever N")
@@ -68,7 +72,7 @@ def cmd_train(args) -> int:
     from ..train.train import run
 
     return run(args.config, args.out, args.resume, args.seed, args.lam, args.steps, args.jobs,
-               widen_pool=getattr(args, "own_process", False))
+               widen_pool=getattr(args, "own_process", False), init=args.init)
 
 
 def cmd_evaluate(args) -> int:

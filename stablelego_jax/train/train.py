@@ -1,6 +1,7 @@
 """Train the generator with shape fidelity + lambda * stability loss.
 
     stablelego train [--config CONFIG] [--out DIR] [--resume] [--seed S] [--lam L] [--steps N] [--jobs N]
+                     [--init CHECKPOINT]
 
 Loss per shape (B shapes per step, averaged; with ``sample`` "layers", B
 one-layer samples of the layers net: see ``SAMPLES``):
@@ -125,6 +126,7 @@ DEFAULTS = {
     "imitate": 0.0,
     "fidelity": 1.0,
     "sample": "shapes",
+    "init": "",
 }
 
 #: Config keys that change how the loss is computed, not its value: a
@@ -211,6 +213,10 @@ def load_config(path: str, **overrides) -> dict:
         raise ConfigError(f"{path}: need 0 < share_power <= 1, got {cfg['share_power']}")
     if not 0 <= cfg["absent_below"] < 1:
         raise ConfigError(f"{path}: need 0 <= absent_below < 1, got {cfg['absent_below']}")
+    if cfg["init"]:
+        cfg["init"] = os.path.abspath(cfg["init"])
+        if not os.path.isfile(cfg["init"]):
+            raise ConfigError(f"{path}: init checkpoint {cfg['init']} not found")
     if cfg["mesh_dir"] is not None and not os.path.isabs(cfg["mesh_dir"]):
         cfg["mesh_dir"] = os.path.abspath(cfg["mesh_dir"])  # relative to the working folder
     if cfg["mesh_dir"] is not None and not os.path.isdir(cfg["mesh_dir"]):
@@ -799,6 +805,26 @@ def initial_params(cfg: dict, seed: int | None = None):
     return generator(cfg).init_params(key, cfg["width"], tuple(cfg["dilations"]), cfg["out_bias"])
 
 
+#: Config keys that give the network's parameters their shapes: a run
+#: started from another's parameters (``init``) must share them.
+NET_KEYS = ("net", "width", "dilations")
+
+
+def params_from(path: str, cfg: dict):
+    """The parameters of checkpoint ``path``, to start a run of ``cfg`` from
+    (config key ``init``: fine-tuning, say with ``lam`` > 0 from a run with
+    ``lam`` 0; a fresh optimizer state, step 0). Raises ConfigError naming
+    the file when it cannot be read or its network differs (``NET_KEYS``)."""
+    try:
+        params, _, _, _, stored, _ = load_checkpoint(path)
+    except (OSError, ValueError, KeyError) as exc:
+        raise ConfigError(f"{path}: cannot read the init checkpoint: {exc}") from None
+    diff = [f"{k} {stored[k]!r} (run: {cfg[k]!r})" for k in NET_KEYS if stored[k] != cfg[k]]
+    if diff:
+        raise ConfigError(f"{path}: init checkpoint has another network: {', '.join(diff)}")
+    return params
+
+
 def generator(cfg: dict):
     """The module of ``cfg``'s network: :mod:`.net` ("volume") or :mod:`.layers`
     ("layers"); both give ``init_params``, ``logits`` and ``probabilities``."""
@@ -950,6 +976,7 @@ def train(cfg: dict, out: str, resume: bool = False, log=sys.stderr, max_steps: 
             check_batched_linalg(cfg["batch"])  # the batch's soft problems are solved under vmap
         except RuntimeError as exc:
             raise ConfigError(str(exc)) from None
+    start = params_from(cfg["init"], cfg) if cfg["init"] else None  # ConfigError before anything is written
     os.makedirs(out, exist_ok=True)
     ckpt = os.path.join(out, "checkpoint.npz")
     if resume and os.path.exists(ckpt):
@@ -959,7 +986,7 @@ def train(cfg: dict, out: str, resume: bool = False, log=sys.stderr, max_steps: 
             raise ConfigError(f"{ckpt}: checkpoint was trained with a different config ({', '.join(diff)})")
         print(f"resuming from {ckpt} at step {step}", file=log)
     else:
-        params = initial_params(cfg)
+        params = initial_params(cfg) if start is None else start
         opt_state = opt.init(params)
         step, rng, history = 0, np.random.default_rng(cfg["seed"]), []
     train_shapes, val, held = dataset(cfg, validation=True)
@@ -1018,17 +1045,17 @@ def train(cfg: dict, out: str, resume: bool = False, log=sys.stderr, max_steps: 
 
 def run(config: str, out: str | None = None, resume: bool = False, seed: int | None = None,
         lam: float | None = None, steps: int | None = None, jobs: int | None = None,
-        widen_pool: bool = False) -> int:
+        widen_pool: bool = False, init: str | None = None) -> int:
     """``stablelego train``: load ``config``, train, write OUT/checkpoint.npz
     and OUT/history.json; exit status (2: bad config, nothing written).
-    ``seed``, ``lam``, ``steps``, ``jobs`` (``solve_jobs``): overrides.
+    ``seed``, ``lam``, ``steps``, ``jobs`` (``solve_jobs``), ``init``: overrides.
     ``widen_pool`` (the program, before JAX's backend starts): with
     subsets solved one per call, XLA's CPU pool gets every core
     (:func:`~stablelego_jax.blas.widen_xla_pool`): each solve's products
     run on all of them, and ``solve_jobs`` solves run at once (with the
     one-thread pool they queue for its thread)."""
     try:
-        cfg = load_config(config, seed=seed, lam=lam, steps=steps, solve_jobs=jobs)
+        cfg = load_config(config, seed=seed, lam=lam, steps=steps, solve_jobs=jobs, init=init)
     except ConfigError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
