@@ -50,8 +50,8 @@ def fractions(rows: list[dict], path: str, merge: list[dict] | None = None) -> d
                 raise RowsError(f"{path}: the merge's rows are of other shapes")
         if not rs:
             raise RowsError(f"{path}: no rows of method {m}")
-        out[m] = float(np.mean([bool(r["stable"]) and r["iou"] == 1.0 for r in rs]))
-        out[f"{m}_count"] = int(sum(bool(r["stable"]) and r["iou"] == 1.0 for r in rs))
+        hits = [bool(r["stable"]) and r["iou"] == 1.0 for r in rs]
+        out[m], out[f"{m}_count"] = float(np.mean(hits)), int(sum(hits))
     out["n"] = len([r for r in rows if r["method"] == "generator_filled"])
     return out
 

@@ -1,7 +1,7 @@
 """The layer-by-layer generator (stablelego_jax.train.layers) and its training (config net "layers", imitate)."""
 import json
-import re
 import os
+import re
 
 import jax
 import numpy as np

@@ -921,14 +921,13 @@ def decoded_layouts(params, arrays: Arrays, cfg: dict, probs_fn, chunk: int = 8,
     the network's decoding (``fill``, ``size_prior``: see
     :func:`stablelego_jax.train.net.decode`; net "layers": bottom up,
     :func:`stablelego_jax.train.layers.decode`)."""
+    from . import layers
     from .net import decode, decoded_iou
 
     def chunks():
         """(pos, size) of each shape's decoding, in the crop, a chunk of shapes at a time."""
         for s in range(0, len(arrays.names), chunk):
             if cfg["net"] == "layers":  # bottom up, each layer on the bricks decoded below it
-                from . import layers
-
                 yield from layers.decode(probs_fn, params, arrays.target[s:s + chunk], arrays.valid[s:s + chunk],
                                          arrays.grid, cfg["threshold"], fill, size_prior)
                 continue
@@ -976,10 +975,12 @@ def train(cfg: dict, out: str, resume: bool = False, log=sys.stderr, max_steps: 
             check_batched_linalg(cfg["batch"])  # the batch's soft problems are solved under vmap
         except RuntimeError as exc:
             raise ConfigError(str(exc)) from None
-    start = params_from(cfg["init"], cfg) if cfg["init"] else None  # ConfigError before anything is written
-    os.makedirs(out, exist_ok=True)
     ckpt = os.path.join(out, "checkpoint.npz")
-    if resume and os.path.exists(ckpt):
+    resuming = resume and os.path.exists(ckpt)
+    # init's parameters (a ConfigError before anything is written), unless the run resumes past them
+    start = params_from(cfg["init"], cfg) if cfg["init"] and not resuming else None
+    os.makedirs(out, exist_ok=True)
+    if resuming:
         params, opt_state, step, rng, stored, history = load_checkpoint(ckpt, cfg)
         diff = config_diff(stored, cfg, ignore=("steps",))
         if diff:
